@@ -1,0 +1,186 @@
+"""The batched public functions: validation, then the single-grasp code of ``_closure`` mapped over
+the batch by ``_batch.map_grasps``."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _closure
+from ._batch import map_grasps
+from ._constants import DEFAULT_NUM_EDGES
+from ._result import GraspEvaluation
+from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
+
+_TORQUE_TESTS = ("exact", "paper")
+
+
+def _check_common(points, normals, mu, num_edges, tangents):
+    points, normals, tangents, batch = check_grasps(points, normals, tangents)
+    mu = check_scalar("mu", mu)
+    num_edges = check_num_edges(num_edges)
+    return points, normals, tangents, batch, jnp.asarray(mu, points.dtype), num_edges
+
+
+def _warn_unconverged(status, what: str):
+    if is_traced(status):
+        return
+    bad = int(np.sum(np.asarray(status) == 2))
+    if bad:
+        warnings.warn(
+            f"{bad} of {np.size(status)} {what} did not converge in the iteration budget; their "
+            "results are reported as not force-closure with quality 0 (see the status fields). "
+            "Pass iterations= to give the solver more.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+
+
+def _evaluate_single(points, normals, tangents, mu, *, num_edges, torque_test, iterations):
+    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations)
+
+
+def evaluate(
+    points,
+    normals,
+    *,
+    mu,
+    num_edges: int = DEFAULT_NUM_EDGES,
+    torque_test: str = "exact",
+    tangents=None,
+    iterations: int | None = None,
+    progress: bool = False,
+) -> GraspEvaluation:
+    """Decide force-closure and compute the quality Q of a batch of grasps.
+
+    Args:
+        points: ``(..., n, d)`` contact points, ``d`` in {2, 3}, ``n >= 2``; the reference contact
+            ``c_1`` is index 0. NumPy or JAX, any leading batch shape.
+        normals: ``(..., n, d)`` **outward** surface normals (normalized here).
+        mu: friction coefficient ``tan(alpha)`` > 0.
+        num_edges: edges of each linearized 3D friction cone (the paper uses 25; 2D cones have 2).
+        torque_test: ``"exact"`` (positive-spanning LP, the default) or ``"paper"`` (eq. 15 / 21,
+            only necessary in 3D; see ``MATH.md``).
+        tangents: optional ``(..., n, 3)`` first tangent direction of each contact frame.
+        iterations: interior-point iterations (default: 20 up to 64 LP columns, else 30).
+        progress: show a progress bar (concrete inputs only).
+
+    Returns:
+        :class:`GraspEvaluation` whose fields have the leading batch shape.
+    """
+    if torque_test not in _TORQUE_TESTS:
+        raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
+    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, iterations=iterations
+    )
+    result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress)
+    _warn_unconverged(result.quality_status, "quality LPs")
+    _warn_unconverged(result.torque_status, "torque LPs")
+    return result
+
+
+def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, torque_test: str = "exact", tangents=None):
+    """``(...)`` bool: whether each grasp is force-closure (Proposition 2). Arguments as
+    :func:`evaluate`; ``torque_test="paper"`` reproduces eq. (15) / (21)."""
+    return evaluate(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test, tangents=tangents).force_closure
+
+
+def _quality_single(points, normals, tangents, mu, *, num_edges, signed, iterations):
+    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations)
+
+
+def quality(
+    points,
+    normals,
+    *,
+    mu,
+    num_edges: int = DEFAULT_NUM_EDGES,
+    signed: bool = False,
+    tangents=None,
+    iterations: int | None = None,
+):
+    """The paper's quality Q (eq. 23) of each grasp, differentiable in ``points`` and ``normals``.
+
+    Q is the optimum ``delta*`` of the normalized equilibrium LP; derivatives come from the
+    envelope theorem on the LP's primal-dual solution (no iteration is differentiated), so
+    ``jax.grad`` and ``jax.jacrev`` work and are finite everywhere.
+
+    Args:
+        points, normals, mu, num_edges, tangents, iterations: as :func:`evaluate`.
+        signed: return ``delta*`` itself, negative where the grasp is not in equilibrium, instead
+            of clipping it to 0. Its gradient pulls a grasp towards equilibrium from anywhere,
+            which is what a contact optimizer wants.
+
+    Returns:
+        ``(...)`` float: Q, ``0`` where the grasp is not in equilibrium (unless ``signed``).
+    """
+    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    fn = _bind(_quality_single, num_edges=num_edges, signed=signed, iterations=iterations)
+    return map_grasps(fn, (points, normals, tangents), mu, batch)
+
+
+def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations):
+    mu, origin, torque_scale = shared
+    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, iterations)
+
+
+def min_weight(
+    points,
+    normals,
+    *,
+    mu,
+    num_edges: int = DEFAULT_NUM_EDGES,
+    origin=None,
+    torque_scale: float = 1.0,
+    tangents=None,
+    iterations: int | None = None,
+):
+    """The classical force-closure margin: ``l*`` of the min-weight LP on the primitive wrenches,
+
+    ``max l  s.t.  sum_k alpha_k w_k = 0,  sum alpha = 1,  alpha_k >= l``.
+
+    ``l* > 0`` iff the grasp is force-closure (then every primitive wrench takes part with weight
+    at least ``l*``). Independent of Proposition 2, this is the reference definition.
+
+    Args:
+        points, normals, mu, num_edges, tangents, iterations: as :func:`evaluate`.
+        origin: ``(d,)`` point torques are taken about (default: the frame origin). ``l*`` does
+            not depend on it; its sign never does.
+        torque_scale: torques are divided by this length (> 0).
+
+    Returns:
+        ``(...)`` float ``l*``: 0 where the wrenches do not span the wrench space, ``-inf`` where
+        no affine combination of them vanishes (LP infeasible).
+    """
+    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    d = points.shape[-1]
+    origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
+    if origin.shape != (d,):
+        raise ValueError(f"origin must have shape ({d},); got {origin.shape}")
+    torque_scale = check_scalar("torque_scale", torque_scale)
+    fn = _bind(_min_weight_single, num_edges=num_edges, iterations=iterations)
+    margin, status = map_grasps(
+        fn, (points, normals, tangents), (mu, origin, jnp.asarray(torque_scale, points.dtype)), batch
+    )
+    _warn_unconverged(status, "min-weight LPs")
+    return margin
+
+
+@dataclasses.dataclass(frozen=True)
+class _Bound:
+    """``func`` with static keyword arguments; equal (and hashed) by value, so that the compiled
+    chunk functions of ``_batch`` are reused across calls with the same settings."""
+
+    func: Callable
+    kwargs: tuple
+
+    def __call__(self, *args):
+        return self.func(*args, **dict(self.kwargs))
+
+
+def _bind(func: Callable, **kwargs) -> _Bound:
+    return _Bound(func, tuple(sorted(kwargs.items())))

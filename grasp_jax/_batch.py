@@ -1,0 +1,147 @@
+"""Batching, in one place: single-grasp functions in, any leading batch shape out.
+
+Two paths:
+
+* **traced** (the caller is inside ``jit``, ``grad`` or ``vmap``): a plain ``jax.vmap`` over the
+  flattened batch, so the result composes with the caller's transformations.
+* **concrete** (NumPy or JAX arrays): the batch is cut into fixed-size chunks, each scored by one
+  compiled function (``lax.map`` over vmapped blocks of :data:`BLOCK` grasps, which keeps the
+  working set in cache), optionally sharded over local devices. Memory stays flat however large
+  the batch, and a chunk size compiles once.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._validate import is_traced
+
+#: Grasps per vmapped block inside a compiled chunk (cache-sized).
+BLOCK = 256
+#: Grasps per compiled call on the concrete path.
+CHUNK = 16384
+
+
+def _bucket(n: int, chunk: int) -> int:
+    """Padded size for a batch of ``n`` grasps: a power of two from BLOCK up to ``chunk``."""
+    size = BLOCK
+    while size < n and size < chunk:
+        size *= 2
+    return min(size, chunk) if n <= chunk else chunk
+
+
+def _blocked(fn: Callable, num_batched: int, size: int, block: int) -> Callable:
+    """``lax.map`` over blocks of ``block`` grasps of ``vmap(fn)``, for ``size`` grasps."""
+    block = min(block, size)
+    in_axes = (0,) * num_batched + (None,)
+
+    def run(batched, shared):
+        blocks = jax.tree_util.tree_map(lambda a: a.reshape((size // block, block) + a.shape[1:]), batched)
+        out = jax.lax.map(lambda xs: jax.vmap(fn, in_axes=in_axes)(*xs, shared), blocks)
+        return jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[2:]), out)
+
+    return run
+
+
+@functools.lru_cache(maxsize=None)
+def _compiled(fn: Callable, num_batched: int, size: int, block: int, devices: tuple) -> Callable:
+    """Compiled scorer of ``size`` grasps, sharded over ``devices`` when there are several."""
+    if len(devices) <= 1:
+        return jax.jit(_blocked(fn, num_batched, size, block))
+    P = jax.sharding.PartitionSpec
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    local = _blocked(fn, num_batched, size // len(devices), block)
+    sharded = jax.shard_map(local, mesh=mesh, in_specs=(P("batch"), P()), out_specs=P("batch"))
+    return jax.jit(sharded)
+
+
+def map_grasps(
+    fn: Callable,
+    batched: tuple,
+    shared,
+    batch_shape: tuple,
+    *,
+    chunk: int = CHUNK,
+    progress: bool = False,
+    devices: tuple | None = None,
+):
+    """Apply a single-grasp function to every grasp of a batch.
+
+    Args:
+        fn: ``fn(*per_grasp_arrays, shared) -> pytree`` for one grasp. Must be hashable and stable
+            (a module-level function or a ``functools.partial`` of one) so that compilations are
+            cached.
+        batched: arrays of shape ``batch_shape + per_grasp_shape`` (``None`` entries allowed).
+        shared: a pytree passed unbatched to every call (``mu`` and the like).
+        batch_shape: leading shape to map over.
+        chunk: grasps per compiled call on the concrete path.
+        progress: show a progress bar over chunks (tqdm).
+        devices: devices to shard each chunk over (default: all local devices of the default
+            backend).
+
+    Returns:
+        ``fn``'s pytree with ``batch_shape`` prepended to every leaf.
+    """
+    present = [a for a in batched if a is not None]
+    total = int(np.prod(batch_shape, dtype=np.int64))
+    flat = tuple(
+        None if a is None else a.reshape((total,) + a.shape[len(batch_shape):]) for a in batched
+    )
+    call = _with_optional(fn, tuple(a is None for a in batched))
+    flat = tuple(a for a in flat if a is not None)
+
+    def unflatten(tree):
+        return jax.tree_util.tree_map(lambda a: a.reshape(batch_shape + a.shape[1:]), tree)
+
+    if is_traced(*present, *jax.tree_util.tree_leaves(shared)) or total == 0:
+        in_axes = (0,) * len(flat) + (None,)
+        if total == 0:
+            out = jax.eval_shape(lambda *xs: jax.vmap(call, in_axes=in_axes)(*xs), *flat, shared)
+            return jax.tree_util.tree_map(lambda s: jnp.zeros(batch_shape + s.shape[1:], s.dtype), out)
+        return unflatten(jax.vmap(call, in_axes=in_axes)(*flat, shared))
+
+    if devices is None:
+        devices = tuple(jax.local_devices())
+    ndev = len(devices)
+    size = _bucket(-(-total // ndev), max(chunk // ndev, BLOCK)) * ndev
+    run = _compiled(call, len(flat), size, BLOCK, tuple(devices) if ndev > 1 else ())
+    starts = range(0, total, size)
+    if progress:
+        from tqdm.auto import tqdm
+
+        starts = tqdm(starts, total=len(starts), unit="chunk", desc=f"scoring {total:,} grasps")
+    outs = []
+    for start in starts:
+        stop = min(start + size, total)
+        pieces = []
+        for a in flat:
+            piece = a[start:stop]
+            if stop - start < size:
+                pad = np.broadcast_to(np.asarray(piece[:1]), (size - (stop - start),) + piece.shape[1:])
+                piece = np.concatenate([np.asarray(piece), pad])
+            pieces.append(piece)
+        res = run(tuple(pieces), shared)
+        outs.append(jax.tree_util.tree_map(lambda a, k=stop - start: a[:k], res))
+    if len(outs) == 1:
+        return unflatten(outs[0])
+    return unflatten(jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *outs))
+
+
+@functools.lru_cache(maxsize=None)
+def _with_optional(fn: Callable, missing: tuple) -> Callable:
+    """Adapt ``fn`` so that ``None`` entries of the batched tuple are passed as ``None``."""
+    if not any(missing):
+        return fn
+
+    def call(*args):
+        *given, shared = args
+        it = iter(given)
+        full = [None if m else next(it) for m in missing]
+        return fn(*full, shared)
+
+    return call

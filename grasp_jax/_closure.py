@@ -1,0 +1,270 @@
+"""The central-axis force-closure test and quality of the paper, for **one** grasp.
+
+Proposition 2 (corrected as in ``MATH.md``): a grasp is force-closure iff, about the first contact
+``c_1``,
+
+1. it is in equilibrium in the sense of eq. (17) / (22): some positive combination of cone edges
+   produces ``-delta z_1`` with zero torque about ``c_1``, ``delta > 0``; and
+2. the torques ``tau_ij = (c_i - c_1) x v_ij`` of the other contacts positively span R^3 (R in 2D).
+
+(1) is the quality LP below; its optimum is the paper's ``Q`` (eq. 23). (2) is exact here: a
+min-weight LP in R^3 plus a rank check (eq. 15 only checks each axis separately, which is too weak
+in 3D; it is kept as ``torque_test="paper"``). In 2D, (2) means the scalar torques take both signs,
+which is exactly eq. (21).
+
+All functions here take one grasp; batching lives in ``_batch.py``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ._cones import cone_edges, safe_normalize
+from ._constants import tolerances
+from ._lp import LP, LPSolution, Status, optimal_value, solve
+from ._result import GraspEvaluation
+from ._wrench import cross, primitive_wrenches
+
+
+def _arm_scale(points: jax.Array) -> jax.Array:
+    """Largest distance from ``c_1`` to another contact (1 where all contacts coincide)."""
+    r = jnp.sqrt(jnp.max(jnp.sum((points - points[0]) ** 2, axis=-1)))
+    return jnp.where(r > tolerances(points.dtype).tiny, r, 1.0)
+
+
+def _torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:
+    """``(n, m, t)`` torques of the cone edges about ``c_1``, divided by the grasp's size."""
+    arm = (points - points[0]) / _arm_scale(points)
+    tau = cross(arm[:, None, :], edges)
+    return tau[..., None] if points.shape[-1] == 2 else tau
+
+
+# ---------------------------------------------------------------------------------------------
+# The LPs.
+
+
+def quality_lp(points: jax.Array, edges: jax.Array) -> LP:
+    """The equilibrium LP of eq. (17)-(20) in the always-feasible normalized form.
+
+    ``max delta  s.t.  sum a_ij v_ij + delta z_1 = 0,  sum a_ij tau_ij = 0,  sum a = 1,  a >= 0``
+    with ``delta`` free (``a_1j = 1/m, delta = -1`` is always feasible). Then ``delta* > 0`` iff
+    eq. (17) has a solution, and ``delta* = Q`` of eq. (23) there (Charnes-Cooper). The standard
+    form uses ``delta' = delta + 1 >= 0``: variables ``(a_11..a_nm, delta')``, rows
+    ``(force: d, torque: 1 or 3, sum: 1)``.
+    """
+    n, m, d = edges.shape
+    z1 = jnp.mean(edges[0], axis=0)  # the mean of the first cone's edges is its axis
+    z1 = safe_normalize(z1)
+    tau = _torques_about_first(points, edges)
+    force_rows = jnp.concatenate([edges.reshape(n * m, d).T, z1[:, None]], axis=1)
+    torque_rows = jnp.concatenate([tau.reshape(n * m, -1).T, jnp.zeros((tau.shape[-1], 1), tau.dtype)], axis=1)
+    sum_row = jnp.concatenate([jnp.ones((1, n * m), edges.dtype), jnp.zeros((1, 1), edges.dtype)], axis=1)
+    A = jnp.concatenate([force_rows, torque_rows, sum_row], axis=0)
+    b = jnp.concatenate([z1, jnp.zeros(tau.shape[-1], edges.dtype), jnp.ones(1, edges.dtype)])
+    c = jnp.zeros(n * m + 1, edges.dtype).at[-1].set(-1.0)
+    return LP(A, b, c)
+
+
+def min_weight_lp(vectors: jax.Array) -> LP:
+    """The min-weight LP ``max l s.t. sum alpha_k w_k = 0, sum alpha = 1, alpha_k >= l``.
+
+    Args:
+        vectors: ``(K, D)`` vectors ``w_k``.
+
+    ``l <= 1/K`` always, so with ``alpha = beta + 1/K - s`` the standard form has variables
+    ``(beta_1..beta_K, s) >= 0``, rows ``W beta - s W1 = -W1/K`` and ``1.beta - K s = 0``, and
+    minimizes ``s``; ``l* = 1/K - s*``. Infeasible iff no affine combination of the ``w_k`` is 0.
+    """
+    K, D = vectors.shape
+    W = vectors.T
+    w1 = jnp.sum(W, axis=1)
+    A = jnp.concatenate(
+        [
+            jnp.concatenate([W, -w1[:, None]], axis=1),
+            jnp.concatenate([jnp.ones((1, K), W.dtype), jnp.full((1, 1), -float(K), W.dtype)], axis=1),
+        ],
+        axis=0,
+    )
+    b = jnp.concatenate([-w1 / K, jnp.zeros(1, W.dtype)])
+    c = jnp.zeros(K + 1, W.dtype).at[-1].set(1.0)
+    return LP(A, b, c)
+
+
+def _min_weight_margin(vectors: jax.Array, sol: LPSolution) -> jax.Array:
+    """``l*`` from a solved :func:`min_weight_lp` (``-inf`` when infeasible, 0 if not converged)."""
+    K = vectors.shape[0]
+    return jnp.where(
+        sol.status == Status.OPTIMAL,
+        1.0 / K - sol.x[-1],
+        jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0),
+    )
+
+
+def _min_weight_certificate(vectors: jax.Array, sol: LPSolution) -> jax.Array:
+    """A direction ``u`` with ``u . w_k >= -l*`` for all k, from the dual of the min-weight LP."""
+    return -sol.y[: vectors.shape[1]]
+
+
+def _gram_rank(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Whether ``(K, D)`` vectors span R^D, and a unit vector of their Gram matrix's least
+    eigenvalue (orthogonal to all of them when they do not)."""
+    tol = tolerances(vectors.dtype)
+    G = vectors.T @ vectors
+    evals, evecs = jnp.linalg.eigh(G)
+    full = evals[0] > tol.rank * jnp.maximum(evals[-1], tol.tiny)
+    return full, evecs[:, 0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Torque tests about c_1.
+
+
+def paper_torque_test(tau: jax.Array) -> jax.Array:
+    """Eq. (15) in 3D / eq. (21) in 2D on ``tau: (K, t)``: each torque component takes both signs.
+
+    Necessary for Proposition 2(2) in 3D, not sufficient (``MATH.md``); exact in 2D.
+    """
+    tol = tolerances(tau.dtype)
+    total_abs = jnp.sum(jnp.abs(tau), axis=0)
+    return jnp.all(total_abs - jnp.abs(jnp.sum(tau, axis=0)) > tol.margin * total_abs + tol.tiny)
+
+
+def _exact_torque_2d(tau: jax.Array):
+    """Scalar torques positively span R iff they take both signs. Returns (span, certificate)."""
+    tol = tolerances(tau.dtype)
+    t = tau[:, 0]
+    hi, lo = jnp.max(t), jnp.min(t)
+    span = (hi > tol.margin) & (lo < -tol.margin)
+    # When not spanning, t_cert * tau >= 0 for every torque (within the margin).
+    t_cert = jnp.where(lo >= -tol.margin, 1.0, -1.0).astype(tau.dtype)
+    return span, jnp.minimum(hi, -lo), t_cert[None]
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluation of one grasp.
+
+
+def _certificate_from_torque(points, t):
+    """Wrench direction ``(c_1 x t, t)`` whose product with ``w_ij`` is ``t . tau_ij`` (about c_1)."""
+    c1 = points[0]
+    if points.shape[-1] == 2:
+        force = t[0] * jnp.stack([c1[1], -c1[0]])
+    else:
+        force = jnp.cross(c1, t)
+    return jnp.concatenate([force, t])
+
+
+def evaluate_one(
+    points: jax.Array,
+    normals: jax.Array,
+    mu,
+    num_edges: int,
+    torque_test: str = "exact",
+    tangents: jax.Array | None = None,
+    iterations: int | None = None,
+) -> GraspEvaluation:
+    """Force-closure verdict, quality Q and certificate of one grasp.
+
+    Args:
+        points: ``(n, d)`` contact points; ``points[0]`` is the reference contact ``c_1``.
+        normals: ``(n, d)`` outward unit normals.
+        mu: friction coefficient.
+        num_edges: edges per 3D friction cone.
+        torque_test: ``"exact"`` (default) or ``"paper"`` (eq. 15 / 21).
+        tangents: optional ``(n, 3)`` first tangent of each 3D contact frame.
+        iterations: interior-point iterations (default from the problem size).
+    """
+    tol = tolerances(points.dtype)
+    d = points.shape[-1]
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    n, m, _ = edges.shape
+    tau = _torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1)
+
+    q_lp = quality_lp(points, edges)
+    if d == 3 and torque_test == "exact":
+        t_lp = min_weight_lp(tau)
+        q_sol, t_sol = solve(q_lp, t_lp, iterations=iterations)
+        full, null = _gram_rank(tau)
+        t_margin = _min_weight_margin(tau, t_sol)
+        torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
+        t_cert = jnp.where(full & (t_sol.status != Status.NOT_CONVERGED), _min_weight_certificate(tau, t_sol), null)
+        t_status = jnp.where(full, t_sol.status, Status.OPTIMAL).astype(jnp.int8)
+        t_margin = jnp.where(full, t_margin, 0.0)
+    else:
+        (q_sol,) = solve(q_lp, iterations=iterations)
+        if d == 2:
+            torque_span, t_margin, t_cert = _exact_torque_2d(tau)
+            if torque_test == "paper":
+                torque_span = paper_torque_test(tau)
+        else:
+            torque_span = paper_torque_test(tau)
+            # No exact LP was solved: report the eq. (15) slack of the weakest axis as the margin.
+            total_abs = jnp.sum(jnp.abs(tau), axis=0)
+            slack = (total_abs - jnp.abs(jnp.sum(tau, axis=0))) / jnp.maximum(total_abs, tol.tiny)
+            t_margin = jnp.min(slack)
+            axis = jnp.argmin(slack)
+            t_cert = jnp.sign(jnp.sum(tau, axis=0)[axis]) * jax.nn.one_hot(axis, 3, dtype=tau.dtype)
+        t_status = jnp.asarray(Status.OPTIMAL, jnp.int8)
+
+    q_ok = q_sol.status == Status.OPTIMAL
+    delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - 1.0, 0.0)
+    equilibrium = q_ok & (delta > tol.margin)
+    quality = jnp.where(equilibrium, delta, 0.0)
+    force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
+
+    # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges.
+    q_dual = q_sol.y
+    t_q = q_dual[d : d + tau.shape[-1]]
+    eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau.shape[-1], points.dtype)]) - _certificate_from_torque(
+        points, t_q / _arm_scale(points)
+    )
+    cert = jnp.where(~torque_span, _certificate_from_torque(points, t_cert), eq_cert)
+    cert = jnp.where(force_closure | ~q_ok, 0.0, safe_normalize(cert))
+
+    return GraspEvaluation(
+        force_closure=force_closure,
+        quality=quality,
+        equilibrium=equilibrium,
+        torque_span=torque_span,
+        delta=delta,
+        torque_margin=t_margin.astype(points.dtype),
+        certificate=cert,
+        quality_status=q_sol.status,
+        torque_status=t_status,
+        iterations=q_sol.iterations,
+    )
+
+
+def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None):
+    """Q of one grasp (``delta*`` of the quality LP, clipped at 0 unless ``signed``), with envelope
+    theorem derivatives in ``points`` and ``normals``."""
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    lp = quality_lp(points, edges)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations)
+    ok = sol.status == Status.OPTIMAL
+    delta = -optimal_value(lp, sol) - 1.0
+    tol = tolerances(points.dtype)
+    if signed:
+        return jnp.where(ok, delta, 0.0)
+    return jnp.where(ok & (delta > tol.margin), delta, 0.0)
+
+
+def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
+    """``(l*, status, certificate)`` of the classical min-weight LP on all primitive wrenches.
+
+    ``l*`` is 0 when the wrenches are rank deficient and ``-inf`` when the LP is infeasible.
+    """
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    w = primitive_wrenches(points, edges, origin)
+    d = points.shape[-1]
+    w = w.at[..., d:].divide(torque_scale)
+    w = w.reshape(-1, w.shape[-1])
+    (sol,) = solve(min_weight_lp(w), iterations=iterations)
+    full, _ = _gram_rank(w)
+    margin = _min_weight_margin(w, sol)
+    margin = jnp.where(full, margin, 0.0)
+    return margin, sol.status

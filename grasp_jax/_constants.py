@@ -1,0 +1,49 @@
+"""Every tolerance and default of grasp_jax, in one place.
+
+Tolerances depend on the floating-point type: use :func:`tolerances` with the dtype of the data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+#: Default number of edges of a linearized 3D friction cone (the paper uses 25).
+DEFAULT_NUM_EDGES = 8
+
+#: Interior-point iterations, chosen from the number of LP variables (see ``SOLVER.md``: 15 were
+#: enough for 33 variables, 25 for about 200).  Problems that converge earlier are frozen.
+def default_iterations(num_vars: int) -> int:
+    """Iteration budget of the interior-point method for an LP with ``num_vars`` columns."""
+    return 20 if num_vars <= 64 else 30
+
+
+@dataclasses.dataclass(frozen=True)
+class Tolerances:
+    """Numerical thresholds for one floating-point type.
+
+    Attributes:
+        lp: relative residual and gap at which the interior-point method stops (per problem).
+        margin: a margin (``delta*`` of the quality LP, ``l*`` of a min-weight LP, both scale free)
+            must exceed this to count as strictly positive. Grasps within ``margin`` of the boundary
+            of force-closure are *marginal*; their verdict is decided by this one number.
+        rank: relative eigenvalue below which a Gram matrix of wrenches counts as rank deficient.
+        pivot: relative Cholesky pivot below which a direction counts as degenerate.
+        tiny: lengths below this are treated as zero (normalization guards).
+    """
+
+    lp: float
+    margin: float
+    rank: float
+    pivot: float
+    tiny: float
+
+
+_F64 = Tolerances(lp=1e-10, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
+_F32 = Tolerances(lp=1e-5, margin=1e-4, rank=1e-5, pivot=1e-6, tiny=1e-30)
+
+
+def tolerances(dtype) -> Tolerances:
+    """Thresholds for ``dtype`` (float64 or float32)."""
+    return _F64 if np.dtype(dtype) == np.float64 else _F32

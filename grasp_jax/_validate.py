@@ -1,0 +1,98 @@
+"""Checks of user input, done before anything is traced. Each failure is one ``ValueError``
+that names the argument and says what was expected."""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def is_traced(*xs) -> bool:
+    """Whether any argument is a JAX tracer (we are inside ``jit``/``grad``/``vmap``)."""
+    return any(isinstance(x, jax.core.Tracer) for x in xs)
+
+
+def _as_float_array(name: str, x):
+    if is_traced(x):
+        arr = x
+    else:
+        try:
+            arr = np.asarray(x)
+        except Exception as exc:  # noqa: BLE001 - any conversion failure is a user error
+            raise ValueError(f"{name} must be an array of numbers; got {type(x).__name__}") from exc
+        if arr.dtype == object or not (
+            np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+        ):
+            raise ValueError(f"{name} must be an array of real numbers; got dtype {arr.dtype}")
+    if not jnp.issubdtype(arr.dtype, jnp.floating):
+        arr = arr.astype(np.float64)
+    return arr
+
+
+def check_scalar(name: str, value, *, positive: bool = True):
+    """A finite (positive) real scalar; tracers pass through unchecked."""
+    if is_traced(value):
+        return value
+    try:
+        v = float(np.asarray(value).item()) if np.ndim(value) == 0 else None
+    except (TypeError, ValueError):
+        v = None
+    if v is None:
+        raise ValueError(f"{name} must be a real scalar; got {value!r}")
+    if not math.isfinite(v) or (positive and v <= 0):
+        raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}; got {value!r}")
+    return v
+
+
+def check_num_edges(num_edges) -> int:
+    if isinstance(num_edges, bool) or not isinstance(num_edges, numbers.Integral) or num_edges < 3:
+        raise ValueError(f"num_edges must be an integer >= 3; got {num_edges!r}")
+    return int(num_edges)
+
+
+def check_grasps(points, normals, tangents=None):
+    """Validate a batch of grasps.
+
+    Args:
+        points, normals: ``(..., n, d)``, ``d`` in {2, 3}, ``n >= 2``; normals outward, non-zero.
+        tangents: optional ``(..., n, 3)`` first tangent directions (3D only).
+
+    Returns:
+        ``(points, normals, tangents, batch_shape)`` as float arrays of one dtype (float64 unless
+        both inputs are float32).
+    """
+    points = _as_float_array("points", points)
+    normals = _as_float_array("normals", normals)
+    if points.ndim < 2:
+        raise ValueError(f"points must have shape (..., n, d); got {points.shape}")
+    if normals.shape != points.shape:
+        raise ValueError(
+            f"normals must have the same shape as points {points.shape}; got {normals.shape}"
+        )
+    n, d = points.shape[-2:]
+    if d not in (2, 3):
+        raise ValueError(f"points must have d = 2 or 3 coordinates in the last axis; got d = {d}")
+    if n < 2:
+        raise ValueError(f"a grasp needs at least 2 contacts; points has n = {n} (shape {points.shape})")
+    dtype = jnp.result_type(points.dtype, normals.dtype)
+    if tangents is not None:
+        if d != 3:
+            raise ValueError("tangents are only meaningful in 3D; got 2D points")
+        tangents = _as_float_array("tangents", tangents)
+        if tangents.shape != points.shape:
+            raise ValueError(f"tangents must have shape {points.shape}; got {tangents.shape}")
+    if not is_traced(points, normals, tangents):
+        for name, arr in (("points", points), ("normals", normals), ("tangents", tangents)):
+            if arr is not None and not np.all(np.isfinite(arr)):
+                bad = np.argwhere(~np.isfinite(arr))[0][:-1]
+                raise ValueError(f"{name} must be finite; found a non-finite value at index {tuple(bad)}")
+        lengths = np.linalg.norm(normals, axis=-1)
+        if np.any(lengths <= 1e-12):
+            bad = np.argwhere(lengths <= 1e-12)[0]
+            raise ValueError(f"normals must be non-zero; found a zero-length normal at index {tuple(bad)}")
+    tangents = None if tangents is None else tangents.astype(dtype)
+    return points.astype(dtype), normals.astype(dtype), tangents, points.shape[:-2]

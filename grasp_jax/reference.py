@@ -1,0 +1,133 @@
+"""Plain NumPy / SciPy reference implementations, one grasp at a time.
+
+They share no code with the JAX engine: cone edges and wrenches are rebuilt here with NumPy loops,
+and the LPs are solved by SciPy's HiGHS. The tests compare the engine with them, and the
+benchmarks time them as the baseline. They are slow (milliseconds per grasp).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linprog
+
+
+def frame(axis: np.ndarray, tangent: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Tangents ``(x, y)`` completing the unit 3D ``axis`` (Duff et al. 2017, as the engine)."""
+    if tangent is not None:
+        x = tangent - np.dot(tangent, axis) * axis
+        x = x / np.linalg.norm(x)
+        return x, np.cross(axis, x)
+    ax, ay, az = axis
+    sign = 1.0 if az >= 0 else -1.0
+    a = -1.0 / (sign + az)
+    b = ax * ay * a
+    return (
+        np.array([1.0 + sign * ax * ax * a, sign * b, -sign * ax]),
+        np.array([b, sign + ay * ay * a, -ay]),
+    )
+
+
+def cone_edges(normals: np.ndarray, mu: float, num_edges: int, tangents=None) -> np.ndarray:
+    """``(n, m, d)`` edges of the linearized friction cones of one grasp (outward normals)."""
+    normals = np.asarray(normals, float)
+    out = []
+    for i, nrm in enumerate(normals):
+        z = -nrm / np.linalg.norm(nrm)
+        if len(z) == 2:
+            t = np.array([-z[1], z[0]])
+            out.append([z - mu * t, z + mu * t])
+            continue
+        x, y = frame(z, None if tangents is None else np.asarray(tangents[i], float))
+        out.append(
+            [z + mu * (np.cos(2 * np.pi * j / num_edges) * x + np.sin(2 * np.pi * j / num_edges) * y)
+             for j in range(1, num_edges + 1)]
+        )
+    return np.array(out)
+
+
+def _cross(a, b):
+    return a[0] * b[1] - a[1] * b[0] if len(a) == 2 else np.cross(a, b)
+
+
+def wrenches(points, normals, mu, num_edges, origin=None, torque_scale=1.0, tangents=None) -> np.ndarray:
+    """``(n*m, D)`` primitive wrenches ``(v, (c - o) x v / torque_scale)`` of one grasp."""
+    points = np.asarray(points, float)
+    origin = np.zeros(points.shape[1]) if origin is None else np.asarray(origin, float)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    rows = []
+    for c, cone in zip(points, edges):
+        for v in cone:
+            rows.append(np.concatenate([v, np.atleast_1d(_cross(c - origin, v)) / torque_scale]))
+    return np.array(rows)
+
+
+def quality_highs(points, normals, mu, num_edges=8, tangents=None) -> tuple[float, bool]:
+    """``(Q, equilibrium)`` from HiGHS on ``max delta s.t. A [a; delta] = 0, sum a = 1, a, delta >= 0``
+    (the normalized eq. 17-20). ``Q = 0`` and ``equilibrium = False`` where infeasible or ``delta* = 0``."""
+    points = np.asarray(points, float)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    n, m, d = edges.shape
+    c1 = points[0]
+    z1 = -np.asarray(normals[0], float) / np.linalg.norm(normals[0])
+    cols = []
+    for i in range(n):
+        for j in range(m):
+            v = edges[i, j]
+            cols.append(np.concatenate([v, np.atleast_1d(_cross(points[i] - c1, v))]))
+    A = np.array(cols).T
+    A = np.concatenate([A, np.concatenate([z1, np.zeros(A.shape[0] - d)])[:, None]], axis=1)
+    A_eq = np.vstack([A, np.concatenate([np.ones(n * m), [0.0]])])
+    b_eq = np.zeros(A_eq.shape[0])
+    b_eq[-1] = 1.0
+    c = np.zeros(n * m + 1)
+    c[-1] = -1.0
+    res = linprog(c, A_eq=A_eq, b_eq=b_eq, bounds=(0, None), method="highs")
+    if res.status != 0:
+        return 0.0, False
+    q = -res.fun
+    return (q, True) if q > 0 else (0.0, False)
+
+
+def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale=1.0, tangents=None) -> float:
+    """``l*`` of ``max l s.t. W alpha = 0, sum alpha = 1, alpha >= l`` with HiGHS; 0 when the
+    wrenches are rank deficient, ``-inf`` when infeasible."""
+    W = wrenches(points, normals, mu, num_edges, origin, torque_scale, tangents).T
+    D, K = W.shape
+    if np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, np.abs(W).max())) < D:
+        return 0.0
+    # variables (alpha, l); alpha - l >= 0
+    c = np.zeros(K + 1)
+    c[-1] = -1.0
+    A_eq = np.vstack([np.hstack([W, np.zeros((D, 1))]), np.concatenate([np.ones(K), [0.0]])])
+    b_eq = np.concatenate([np.zeros(D), [1.0]])
+    A_ub = np.hstack([-np.eye(K), np.ones((K, 1))])
+    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(K), A_eq=A_eq, b_eq=b_eq,
+                  bounds=[(None, None)] * (K + 1), method="highs")
+    if res.status == 2:
+        return -np.inf
+    return float(-res.fun)
+
+
+def torque_span_highs(points, normals, mu, num_edges=8, tangents=None) -> bool:
+    """Whether the torques about ``c_1`` of contacts 2..n positively span the torque space."""
+    points = np.asarray(points, float)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    taus = np.array([np.atleast_1d(_cross(points[i] - points[0], v)) for i in range(1, len(points)) for v in edges[i]])
+    scale = np.abs(taus).max()
+    if scale == 0:
+        return False
+    taus = taus / scale
+    if taus.shape[1] == 1:
+        return bool(taus.max() > 1e-9 and taus.min() < -1e-9)
+    T = taus.T
+    if np.linalg.matrix_rank(T, tol=1e-9) < 3:
+        return False
+    K = T.shape[1]
+    c = np.zeros(K + 1)
+    c[-1] = -1.0
+    A_eq = np.vstack([np.hstack([T, np.zeros((3, 1))]), np.concatenate([np.ones(K), [0.0]])])
+    b_eq = np.concatenate([np.zeros(3), [1.0]])
+    A_ub = np.hstack([-np.eye(K), np.ones((K, 1))])
+    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(K), A_eq=A_eq, b_eq=b_eq,
+                  bounds=[(None, None)] * (K + 1), method="highs")
+    return bool(res.status == 0 and -res.fun > 1e-9)
