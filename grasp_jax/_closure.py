@@ -116,6 +116,28 @@ def _gram_rank(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
     return full, evecs[:, 0]
 
 
+def _gram_rank3(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """:func:`_gram_rank` for ``D = 3`` in closed form (no eigensolver in the hot path).
+
+    Rank 3 iff ``det G / (tr G / 3)^3`` exceeds ``rank`` (this ratio lies between
+    ``(l_min/l_max)^2`` and ``27 l_min/l_max``; rounding leaves ~1e-16 on rank-2 sets). The null vector of a rank-2 Gram matrix is any
+    non-zero column of its adjugate; of a rank-1 matrix, a vector orthogonal to its largest row.
+    """
+    tol = tolerances(vectors.dtype)
+    G = vectors.T @ vectors
+    tr = jnp.trace(G)
+    g = G / jnp.where(tr > tol.tiny, tr, 1.0)
+    adj = jnp.stack([jnp.cross(g[1], g[2]), jnp.cross(g[2], g[0]), jnp.cross(g[0], g[1])])
+    det = jnp.dot(g[0], adj[0])
+    full = (tr > tol.tiny) & (det * 27.0 > tol.rank)
+    col = adj[jnp.argmax(jnp.sum(adj * adj, axis=1))]
+    row = g[jnp.argmax(jnp.sum(g * g, axis=1))]
+    perp = jnp.cross(row, jnp.eye(3, dtype=g.dtype)[jnp.argmin(jnp.abs(row))])
+    null = jnp.where(jnp.sum(col * col) > tol.rank**2, col, perp)
+    null = jnp.where(jnp.sum(null * null) > tol.tiny, null, jnp.eye(3, dtype=g.dtype)[2])
+    return full, safe_normalize(null)
+
+
 # ---------------------------------------------------------------------------------------------
 # Torque tests about c_1.
 
@@ -186,7 +208,7 @@ def evaluate_one(
     if d == 3 and torque_test == "exact":
         t_lp = min_weight_lp(tau)
         q_sol, t_sol = solve(q_lp, t_lp, iterations=iterations)
-        full, null = _gram_rank(tau)
+        full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
         t_cert = jnp.where(full & (t_sol.status != Status.NOT_CONVERGED), _min_weight_certificate(tau, t_sol), null)

@@ -138,24 +138,35 @@ def _init(lp: LP) -> _State:
     )
 
 
-def _measures(lp: LP, st: _State):
-    """Relative residuals of the scaled iterate and the two certificates of infeasibility."""
+def _measures(lp: LP, st: _State, rp, rd, aty):
+    """Convergence tests of the current iterate from its residuals.
+
+    ``rp = b tau - A x`` and ``rd = c tau - A^T y - s`` are the residuals of the homogeneous model;
+    divided by ``tau`` they are those of the scaled iterate ``(x, y, s) / tau``. Returns
+    ``(optimal, infeasible, residual)``.
+    """
     A, b, c = lp
     tol = tolerances(A.dtype)
-    x, y, s = st.x / st.tau, st.y / st.tau, st.s / st.tau
-    pres = jnp.linalg.norm(A @ x - b) / (1.0 + jnp.linalg.norm(b))
-    dres = jnp.linalg.norm(A.T @ y + s - c) / (1.0 + jnp.linalg.norm(c))
-    pobj, dobj = c @ x, b @ y
-    gap = jnp.abs(pobj - dobj) / (1.0 + jnp.abs(pobj))
+    tau = st.tau
+    pres = jnp.linalg.norm(rp) / (tau * (1.0 + jnp.linalg.norm(b)))
+    dres = jnp.linalg.norm(rd) / (tau * (1.0 + jnp.linalg.norm(c)))
+    pobj, dobj = c @ st.x, b @ st.y
+    gap = jnp.abs(pobj - dobj) / (tau + jnp.abs(pobj))
     residual = jnp.maximum(jnp.maximum(pres, dres), gap)
     optimal = residual <= tol.lp
     # Farkas: A^T y <= 0 and b . y > 0 proves A x = b, x >= 0 infeasible.
-    by = b @ st.y
-    aty = A.T @ st.y
-    scale = jnp.max(jnp.abs(aty)) + jnp.abs(by)
-    infeasible = (by > 0) & (jnp.max(aty) <= 1e3 * tol.lp * scale) & (by > 1e3 * tol.lp * scale)
-    infeasible = infeasible & (st.tau <= 1e-3 * st.kappa) & ~optimal
+    scale = jnp.max(jnp.abs(aty)) + jnp.abs(dobj)
+    infeasible = (jnp.max(aty) <= 1e3 * tol.lp * scale) & (dobj > 1e3 * tol.lp * scale)
+    infeasible = infeasible & (tau <= 1e-3 * st.kappa) & ~optimal
     return optimal, infeasible, residual
+
+
+def _residuals(lp: LP, st: _State):
+    A, b, c = lp
+    aty = A.T @ st.y
+    rp = b * st.tau - A @ st.x
+    rd = c * st.tau - aty - st.s
+    return rp, rd, aty
 
 
 def _step(lp: LP, st: _State) -> _State:
@@ -166,8 +177,8 @@ def _step(lp: LP, st: _State) -> _State:
     x, y, s, tau, kappa = st.x, st.y, st.s, st.tau, st.kappa
     n = x.shape[0]
 
-    rp = b * tau - A @ x
-    rd = c * tau - A.T @ y - s
+    rp, rd, aty = _residuals(lp, st)
+    optimal, infeasible, _ = _measures(lp, st, rp, rd, aty)
     rg = kappa + c @ x - b @ y
     mu = (x @ s + tau * kappa) / (n + 1)
 
@@ -220,15 +231,16 @@ def _step(lp: LP, st: _State) -> _State:
     # Keep every quantity finite and positive even on a wild step; a frozen problem stays put.
     ok = jnp.all(jnp.isfinite(new.x)) & jnp.all(jnp.isfinite(new.y)) & jnp.isfinite(new.tau)
     ok = ok & jnp.all(new.x > 0) & jnp.all(new.s > 0) & (new.tau > 0) & (new.kappa > 0)
-    keep = st.done | ~ok
+    done = st.done | optimal | infeasible
+    keep = done | ~ok
     new = jax.tree_util.tree_map(lambda o, nw: jnp.where(keep, o, nw), st, new)
-    optimal, infeasible, _ = _measures(lp, new)
-    return new._replace(done=new.done | optimal | infeasible | ~ok)
+    return new._replace(done=done | ~ok, iterations=jnp.where(done, st.iterations, st.iterations + 1))
 
 
 def _finish(lp: LP, st: _State) -> LPSolution:
     A, b, c = lp
-    optimal, infeasible, residual = _measures(lp, st)
+    rp, rd, aty = _residuals(lp, st)
+    optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
     status = jnp.where(
         optimal, Status.OPTIMAL, jnp.where(infeasible, Status.INFEASIBLE, Status.NOT_CONVERGED)
     ).astype(jnp.int8)
@@ -262,10 +274,15 @@ def solve(*lps: LP, iterations: int | None = None) -> tuple[LPSolution, ...]:
         iterations = default_iterations(max(lp.A.shape[1] for lp in lps))
     states = tuple(_init(lp) for lp in lps)
 
-    def body(_, sts):
-        return tuple(_step(lp, st) for lp, st in zip(lps, sts))
+    def body(carry):
+        k, sts = carry
+        return k + 1, tuple(_step(lp, st) for lp, st in zip(lps, sts))
 
-    states = jax.lax.fori_loop(0, iterations, body, states)
+    def cond(carry):
+        k, sts = carry
+        return (k < iterations) & ~jnp.all(jnp.stack([st.done for st in sts]))
+
+    _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
     return tuple(_finish(lp, st) for lp, st in zip(lps, states))
 
 
