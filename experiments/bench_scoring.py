@@ -1,0 +1,157 @@
+"""Benchmark of the batched scorer against the one-grasp-at-a-time baselines, in one run.
+
+For n = 3, 4, 7 contacts and m = 8, 25 cone edges, times ``gj.evaluate`` (force-closure + Q +
+certificate; compile time reported separately) on 1k, 10k and 100k grasps of an ellipsoid, and
+against it SciPy HiGHS solving only the Q LP one grasp at a time and qhull epsilon one grasp at a
+time (both on a sample, timed per grasp). Also checks accuracy on the HiGHS sample: the largest
+|Q - Q_HiGHS| and the force-closure verdicts against the min-weight definition (HiGHS) on grasps
+that are not marginal. Peak RSS after each batch shows that memory stays flat (scoring is chunked).
+
+    python experiments/bench_scoring.py                 # full table (a few minutes on 2 cores)
+    python experiments/bench_scoring.py --quick         # smaller batches, for a smoke test
+    python experiments/bench_scoring.py --devices 1     # one XLA CPU device (default: all cores)
+
+Prints a table and writes ``experiments/results/bench_scoring.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+
+def _parse():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="batches of 1k and 10k only, small baseline samples")
+    ap.add_argument("--devices", type=int, default=os.cpu_count(), help="XLA CPU devices (default: cores)")
+    ap.add_argument("--fingers", type=int, nargs="+", default=[3, 4, 7])
+    ap.add_argument("--edges", type=int, nargs="+", default=[8, 25])
+    ap.add_argument("--batches", type=int, nargs="+", default=None)
+    ap.add_argument("--baseline-sample", type=int, default=200, help="grasps timed one at a time per baseline")
+    ap.add_argument("--mu", type=float, default=0.364)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_scoring.json")
+    return ap.parse_args()
+
+
+ARGS = _parse()
+if ARGS.devices > 1 and "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={ARGS.devices}"
+    ).strip()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import grasp_jax as gj  # noqa: E402
+from grasp_jax import reference  # noqa: E402
+from grasp_jax._baseline import epsilon_one  # noqa: E402
+
+AXES = np.array([1.0, 0.7, 0.5])
+
+
+def ellipsoid_grasps(num: int, n: int, seed: int):
+    """``num`` grasps of ``n`` contacts uniform in direction on an ellipsoid, exact outward normals."""
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(num, n, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    points = u * AXES
+    normals = points / AXES**2
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    return points, normals
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def time_evaluate(points, normals, mu, m):
+    t0 = time.perf_counter()
+    res = gj.evaluate(points, normals, mu=mu, num_edges=m)
+    jax.block_until_ready(res)
+    return time.perf_counter() - t0, res
+
+
+def main():
+    batches = ARGS.batches or ([1_000, 10_000] if ARGS.quick else [1_000, 10_000, 100_000])
+    sample = 50 if ARGS.quick else ARGS.baseline_sample
+    mu = ARGS.mu
+    rows = []
+    print(f"grasp_jax {gj.__version__}, jax {jax.__version__}, {jax.device_count()} x {jax.devices()[0].platform}, "
+          f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}", flush=True)
+    for m in ARGS.edges:
+        for n in ARGS.fingers:
+            # Compile every chunk shape the batches will use, and report it.
+            warm_p, warm_n = ellipsoid_grasps(max(batches), n, seed=99)
+            t_compile = 0.0
+            for b in sorted(set(batches)):
+                t, _ = time_evaluate(warm_p[:b], warm_n[:b], mu, m)
+                t_compile += t
+
+            # Baselines, one grasp at a time, and the accuracy check on the same grasps.
+            bp, bn = ellipsoid_grasps(sample, n, seed=7)
+            t0 = time.perf_counter()
+            q_ref = np.array([reference.quality_highs(bp[k], bn[k], mu, m)[0] for k in range(sample)])
+            highs_rate = sample / (time.perf_counter() - t0)
+            qh = max(10, sample // 4)
+            t0 = time.perf_counter()
+            for k in range(qh):
+                epsilon_one(reference.wrenches(bp[k], bn[k], mu, m))
+            qhull_rate = qh / (time.perf_counter() - t0)
+            l_ref = np.array([reference.min_weight_highs(bp[k], bn[k], mu, m) for k in range(sample)])
+            ev = gj.evaluate(bp, bn, mu=mu, num_edges=m)
+            q = np.asarray(ev.quality)
+            clear = np.abs(l_ref) > 1e-6
+            q_clear = clear & (np.abs(q_ref) > 1e-6)
+            q_err = float(np.max(np.abs(q - q_ref)[q_clear])) if q_clear.any() else 0.0
+            agree = int(np.sum((np.asarray(ev.force_closure) == (l_ref > 0))[clear]))
+
+            for b in batches:
+                p, nr = ellipsoid_grasps(b, n, seed=b)
+                t, res = time_evaluate(p, nr, mu, m)
+                rate = b / t
+                row = dict(
+                    fingers=n, edges=m, batch=b, seconds=t, grasps_per_s=rate,
+                    compile_s=t_compile, highs_q_per_s=highs_rate, qhull_eps_per_s=qhull_rate,
+                    ratio_vs_highs=rate / highs_rate, ratio_vs_qhull=rate / qhull_rate,
+                    fc_rate=float(np.mean(np.asarray(res.force_closure))),
+                    max_abs_q_err=q_err, verdicts_agree=agree, verdicts_checked=int(clear.sum()),
+                    peak_rss_mb=peak_rss_mb(),
+                )
+                rows.append(row)
+                print(
+                    f"n={n} m={m:2d} batch={b:>7,}: {rate:>9,.0f} grasps/s  (x{row['ratio_vs_highs']:,.0f} HiGHS "
+                    f"{highs_rate:,.0f}/s, x{row['ratio_vs_qhull']:,.0f} qhull {qhull_rate:,.0f}/s)  "
+                    f"compile {t_compile:.1f}s  FC {row['fc_rate']:.2f}  |dQ|max {q_err:.1e}  "
+                    f"verdicts {agree}/{int(clear.sum())}  RSS {row['peak_rss_mb']:.0f} MB",
+                    flush=True,
+                )
+
+    print()
+    print("| n | m | batch | grasps/s | x HiGHS (Q LP) | x qhull (eps) | compile s | max abs dQ | verdicts | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['fingers']} | {r['edges']} | {r['batch']:,} | {r['grasps_per_s']:,.0f} | {r['ratio_vs_highs']:,.0f} "
+            f"| {r['ratio_vs_qhull']:,.0f} | {r['compile_s']:.1f} | {r['max_abs_q_err']:.1e} "
+            f"| {r['verdicts_agree']}/{r['verdicts_checked']} | {r['peak_rss_mb']:.0f} |"
+        )
+    ARGS.out.parent.mkdir(parents=True, exist_ok=True)
+    meta = dict(
+        grasp_jax=gj.__version__, jax=jax.__version__, devices=jax.device_count(),
+        platform=jax.devices()[0].platform, device_kind=jax.devices()[0].device_kind,
+        cores=os.cpu_count(), mu=mu, python=sys.version.split()[0],
+    )
+    tmp = ARGS.out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(dict(meta=meta, rows=rows), indent=2))
+    os.replace(tmp, ARGS.out)
+    print(f"\nwrote {ARGS.out}")
+
+
+if __name__ == "__main__":
+    main()
