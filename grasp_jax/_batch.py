@@ -21,15 +21,26 @@ import numpy as np
 
 from ._validate import is_traced
 
-#: Grasps per vmapped block inside a compiled chunk (cache-sized).
+#: Grasps per vmapped block inside a compiled chunk on a CPU (cache-sized; measured best of
+#: 64..1024 for n = 4, m = 8).
 BLOCK = 256
-#: Grasps per compiled call on the concrete path.
+#: Grasps per compiled call on the concrete path, on a CPU.
 CHUNK = 16384
+#: On an accelerator a chunk is one vmapped block (no ``lax.map``): a GPU wants wide batches.
+ACCELERATOR_CHUNK = 131072
 
 
-def _bucket(n: int, chunk: int) -> int:
-    """Padded size for a batch of ``n`` grasps: a power of two from BLOCK up to ``chunk``."""
-    size = BLOCK
+def _sizes(devices: tuple, chunk: int | None) -> tuple[int, int]:
+    """``(block, chunk)`` for the devices' platform."""
+    if devices[0].platform == "cpu":
+        return BLOCK, chunk or CHUNK
+    chunk = chunk or ACCELERATOR_CHUNK
+    return chunk, chunk
+
+
+def _bucket(n: int, chunk: int, smallest: int = 256) -> int:
+    """Padded size for a batch of ``n`` grasps: a power of two from ``smallest`` up to ``chunk``."""
+    size = smallest
     while size < n and size < chunk:
         size *= 2
     return min(size, chunk) if n <= chunk else chunk
@@ -68,7 +79,7 @@ def map_grasps(
     shared,
     batch_shape: tuple,
     *,
-    chunk: int = CHUNK,
+    chunk: int | None = None,
     progress: bool = False,
     devices: tuple | None = None,
 ):
@@ -81,7 +92,8 @@ def map_grasps(
         batched: arrays of shape ``batch_shape + per_grasp_shape`` (``None`` entries allowed).
         shared: a pytree passed unbatched to every call (``mu`` and the like).
         batch_shape: leading shape to map over.
-        chunk: grasps per compiled call on the concrete path.
+        chunk: grasps per compiled call on the concrete path (default :data:`CHUNK` on a CPU,
+            :data:`ACCELERATOR_CHUNK` on an accelerator).
         progress: show a progress bar over chunks (tqdm).
         devices: devices to shard each chunk over (default: all local devices of the default
             backend).
@@ -110,8 +122,9 @@ def map_grasps(
     if devices is None:
         devices = tuple(jax.local_devices())
     ndev = len(devices)
-    size = _bucket(-(-total // ndev), max(chunk // ndev, BLOCK)) * ndev
-    run = _compiled(call, len(flat), size, BLOCK, tuple(devices) if ndev > 1 else ())
+    block, chunk = _sizes(devices, chunk)
+    size = _bucket(-(-total // ndev), max(chunk // ndev, BLOCK), min(BLOCK, block)) * ndev
+    run = _compiled(call, len(flat), size, block, tuple(devices) if ndev > 1 else ())
     starts = range(0, total, size)
     if progress:
         from tqdm.auto import tqdm
