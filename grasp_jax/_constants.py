@@ -41,7 +41,7 @@ class Tolerances:
 
 
 _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
-_F32 = Tolerances(lp=1e-5, margin=1e-4, rank=1e-5, pivot=1e-6, tiny=1e-30)
+_F32 = Tolerances(lp=1e-4, margin=1e-4, rank=1e-5, pivot=1e-6, tiny=1e-30)
 
 
 def tolerances(dtype) -> Tolerances:
