@@ -186,12 +186,15 @@ def _step(lp: LP, st: _State) -> _State:
     Ad = A * d
     M = Ad @ A.T
     L = _cholesky(M, tol.pivot, huge)
-    p = _cho_solve(L, b + Ad @ c)
+    # The solve for p and the predictor's solve share one pass through the factor.
+    rhs = jnp.stack([b, rp], axis=1) + Ad @ jnp.stack([c, rd + s], axis=1)
+    p, q_affine = _cho_solve(L, rhs).T
     u = d * (A.T @ p - c)
     denom = -(c @ u) + b @ p + kappa / tau
 
-    def direction(eta, rxs, rtk):
-        q = _cho_solve(L, eta * rp + Ad @ (eta * rd - rxs / x))
+    def direction(eta, rxs, rtk, q=None):
+        if q is None:
+            q = _cho_solve(L, eta * rp + Ad @ (eta * rd - rxs / x))
         v = d * (A.T @ q + rxs / x - eta * rd)
         dtau = (eta * rg + c @ v - b @ q + rtk / tau) / denom
         dx = u * dtau + v
@@ -206,7 +209,7 @@ def _step(lp: LP, st: _State) -> _State:
         return _max_step(everything, jnp.concatenate([dx, ds, dtau[None], dkappa[None]]))
 
     # Predictor (affine scaling).
-    dx_a, _, ds_a, dtau_a, dkappa_a = direction(1.0, -x * s, -tau * kappa)
+    dx_a, _, ds_a, dtau_a, dkappa_a = direction(1.0, -x * s, -tau * kappa, q_affine)
     a_aff = jnp.minimum(1.0, step_length(dx_a, ds_a, dtau_a, dkappa_a))
     mu_aff = (
         (x + a_aff * dx_a) @ (s + a_aff * ds_a) + (tau + a_aff * dtau_a) * (kappa + a_aff * dkappa_a)
