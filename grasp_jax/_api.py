@@ -7,6 +7,7 @@ import dataclasses
 import warnings
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -78,9 +79,23 @@ def evaluate(
     fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, iterations=iterations
     )
     result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress)
+    if points.dtype == np.float32 and not is_traced(points, normals, tangents, mu):
+        result = _resolve_in_float64(result, fn, points, normals, tangents, mu)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
+
+
+def _resolve_in_float64(result: GraspEvaluation, fn, points, normals, tangents, mu) -> GraspEvaluation:
+    """Re-solve in float64 the grasps whose float32 LPs did not converge (about 1% of random
+    grasps: float32 cannot resolve the ill-conditioned last iterations), cast back to float32."""
+    bad = ~np.asarray(result.converged)
+    if not bad.any():
+        return result
+    sub = (points[bad], normals[bad], None if tangents is None else tangents[bad])
+    sub = tuple(None if a is None else jnp.asarray(a, jnp.float64) for a in sub)
+    redo = map_grasps(fn, sub, jnp.asarray(mu, jnp.float64), (int(bad.sum()),))
+    return jax.tree_util.tree_map(lambda a, b: a.at[bad].set(b.astype(a.dtype)), result, redo)
 
 
 def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, torque_test: str = "exact", tangents=None):

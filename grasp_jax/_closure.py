@@ -44,13 +44,20 @@ def _torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:
 # The LPs.
 
 
+#: ``delta >= -SHIFT`` is added to the quality LP to make it standard form. Any ``SHIFT >= 1``
+#: leaves the optimum unchanged (``delta* >= -1``); with 2 rather than 1 the bound is never active,
+#: which spares the interior-point method a degenerate optimal face on grasps whose only
+#: solution is the first contact alone (``delta* = -1``): 16 iterations fell to about 11 there.
+SHIFT = 2.0
+
+
 def quality_lp(points: jax.Array, edges: jax.Array) -> LP:
     """The equilibrium LP of eq. (17)-(20) in the always-feasible normalized form.
 
     ``max delta  s.t.  sum a_ij v_ij + delta z_1 = 0,  sum a_ij tau_ij = 0,  sum a = 1,  a >= 0``
     with ``delta`` free (``a_1j = 1/m, delta = -1`` is always feasible). Then ``delta* > 0`` iff
     eq. (17) has a solution, and ``delta* = Q`` of eq. (23) there (Charnes-Cooper). The standard
-    form uses ``delta' = delta + 1 >= 0``: variables ``(a_11..a_nm, delta')``, rows
+    form uses ``delta' = delta + SHIFT >= 0``: variables ``(a_11..a_nm, delta')``, rows
     ``(force: d, torque: 1 or 3, sum: 1)``.
     """
     n, m, d = edges.shape
@@ -61,7 +68,7 @@ def quality_lp(points: jax.Array, edges: jax.Array) -> LP:
     torque_rows = jnp.concatenate([tau.reshape(n * m, -1).T, jnp.zeros((tau.shape[-1], 1), tau.dtype)], axis=1)
     sum_row = jnp.concatenate([jnp.ones((1, n * m), edges.dtype), jnp.zeros((1, 1), edges.dtype)], axis=1)
     A = jnp.concatenate([force_rows, torque_rows, sum_row], axis=0)
-    b = jnp.concatenate([z1, jnp.zeros(tau.shape[-1], edges.dtype), jnp.ones(1, edges.dtype)])
+    b = jnp.concatenate([SHIFT * z1, jnp.zeros(tau.shape[-1], edges.dtype), jnp.ones(1, edges.dtype)])
     c = jnp.zeros(n * m + 1, edges.dtype).at[-1].set(-1.0)
     return LP(A, b, c)
 
@@ -231,7 +238,7 @@ def evaluate_one(
         t_status = jnp.asarray(Status.OPTIMAL, jnp.int8)
 
     q_ok = q_sol.status == Status.OPTIMAL
-    delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - 1.0, 0.0)
+    delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
     equilibrium = q_ok & (delta > tol.margin)
     quality = jnp.where(equilibrium, delta, 0.0)
     force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
@@ -267,7 +274,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     lp = quality_lp(points, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations)
     ok = sol.status == Status.OPTIMAL
-    delta = -optimal_value(lp, sol) - 1.0
+    delta = -optimal_value(lp, sol) - SHIFT
     tol = tolerances(points.dtype)
     if signed:
         return jnp.where(ok, delta, 0.0)

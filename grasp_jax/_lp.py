@@ -220,7 +220,7 @@ def _step(lp: LP, st: _State) -> _State:
     rxs = -x * s - dx_a * ds_a + sigma * mu
     rtk = -tau * kappa - dtau_a * dkappa_a + sigma * mu
     dx, dy, ds, dtau, dkappa = direction(1.0 - sigma, rxs, rtk)
-    alpha = jnp.minimum(1.0, 0.99 * step_length(dx, ds, dtau, dkappa))
+    alpha = jnp.minimum(1.0, 0.999 * step_length(dx, ds, dtau, dkappa))
 
     new = _State(
         x=x + alpha * dx,
