@@ -1,0 +1,152 @@
+"""Batching: any leading batch shape, chunking, input types and dtypes give the same answers."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grasp_jax as gj
+import grasp_jax._api as api
+from grasp_jax import _batch, reference
+
+from _grasps import MU, grasps, sample_box, sample_cylinder, sample_sphere
+
+N, D = 4, 3  # every batch below has this grasp shape: the concrete path compiles once (bucket 256)
+
+
+def _batch_of(count, seed):
+    rng = np.random.default_rng(seed)
+    parts = [grasps(s, -(-count // 3), N, rng) for s in (sample_box, sample_cylinder, sample_sphere)]
+    p = np.concatenate([a for a, _ in parts])[:count]
+    n = np.concatenate([b for _, b in parts])[:count]
+    order = rng.permutation(count)
+    return p[order], n[order]
+
+
+def _fields(ev):
+    return {f: np.asarray(getattr(ev, f)) for f in ev.__dataclass_fields__}
+
+
+def _assert_same(a: gj.GraspEvaluation, b: gj.GraspEvaluation, exact=True):
+    fa, fb = _fields(a), _fields(b)
+    for name in fa:
+        assert fa[name].shape == fb[name].shape, name
+        assert fa[name].dtype == fb[name].dtype, name
+        if exact or fa[name].dtype.kind in "biu":
+            np.testing.assert_array_equal(fa[name], fb[name], err_msg=name)
+        else:
+            np.testing.assert_allclose(fa[name], fb[name], rtol=1e-12, atol=1e-13, err_msg=name)
+
+
+@pytest.fixture(scope="module")
+def batch():
+    p, n = _batch_of(24, seed=1)
+    return p, n, gj.evaluate(p, n, mu=MU)
+
+
+def test_batch_equals_loop(batch):
+    p, n, ev = batch
+    assert len(ev) == 24 and ev.force_closure.shape == (24,) and ev.certificate.shape == (24, 6)
+    assert 0 < np.sum(ev.force_closure) < 24
+    for k in range(len(p)):
+        single = gj.evaluate(p[k], n[k], mu=MU)
+        assert single.force_closure.shape == () and single.quality.shape == ()
+        assert single.certificate.shape == (6,)
+        _assert_same(single, ev[k])
+
+
+def test_arbitrary_leading_shape(batch):
+    p, n, ev = batch
+    ev4 = gj.evaluate(p.reshape(2, 3, 4, N, D), n.reshape(2, 3, 4, N, D), mu=MU)
+    assert ev4.force_closure.shape == (2, 3, 4) and ev4.certificate.shape == (2, 3, 4, 6)
+    _assert_same(jax.tree_util.tree_map(lambda a: a.reshape((24,) + a.shape[3:]), ev4), ev)
+    q = gj.quality(p.reshape(4, 6, N, D), n.reshape(4, 6, N, D), mu=MU)
+    assert q.shape == (4, 6)
+    np.testing.assert_allclose(np.asarray(q).reshape(-1), np.asarray(ev.quality), atol=1e-12)
+    fc = gj.force_closure(p[:6].reshape(2, 3, N, D), n[:6].reshape(2, 3, N, D), mu=MU)
+    assert fc.shape == (2, 3) and fc.dtype == bool
+    np.testing.assert_array_equal(np.asarray(fc).reshape(-1), np.asarray(ev.force_closure[:6]))
+    mw = gj.min_weight(p[:6].reshape(3, 2, N, D), n[:6].reshape(3, 2, N, D), mu=MU)
+    assert mw.shape == (3, 2)
+    assert np.ndim(gj.min_weight(p[0], n[0], mu=MU)) == 0 and np.ndim(gj.quality(p[0], n[0], mu=MU)) == 0
+
+
+def test_numpy_jax_and_list_inputs_agree(batch):
+    p, n, ev = batch
+    _assert_same(gj.evaluate(jnp.asarray(p), jnp.asarray(n), mu=MU), ev)
+    _assert_same(gj.evaluate(p.tolist(), n.tolist(), mu=jnp.float64(MU)), ev)
+    _assert_same(gj.evaluate(p, jnp.asarray(n), mu=np.float64(MU)), ev)
+
+
+def test_result_helpers(batch):
+    p, n, ev = batch
+    assert ev.converged.shape == (24,) and ev.converged.dtype == bool
+    sub = ev[3:7]
+    assert isinstance(sub, gj.GraspEvaluation) and len(sub) == 4
+    np.testing.assert_array_equal(np.asarray(sub.quality), np.asarray(ev.quality)[3:7])
+    assert ev.quality.dtype == jnp.float64 and ev.quality_status.dtype == jnp.int8
+    assert ev.iterations.dtype == jnp.int32
+
+
+def test_float32_inputs(batch):
+    p, n, ev = batch
+    ev32 = gj.evaluate(p.astype(np.float32), n.astype(np.float32), mu=MU)
+    for name in ("quality", "delta", "torque_margin", "certificate"):
+        assert getattr(ev32, name).dtype == jnp.float32, name
+    assert ev32.force_closure.dtype == bool
+    assert np.all(ev32.converged)
+    # Verdicts agree with float64 wherever the grasp is clearly away from the boundary.
+    l_ref = np.array([reference.min_weight_highs(a, b, MU) for a, b in zip(p, n)])
+    clear = (np.abs(l_ref) > 1e-3) & (np.abs(np.asarray(ev.delta)) > 1e-2)
+    assert clear.sum() >= 12
+    np.testing.assert_array_equal(np.asarray(ev32.force_closure)[clear], np.asarray(ev.force_closure)[clear])
+    np.testing.assert_array_equal(np.asarray(ev32.equilibrium)[clear], np.asarray(ev.equilibrium)[clear])
+    np.testing.assert_allclose(np.asarray(ev32.quality)[clear], np.asarray(ev.quality)[clear], atol=2e-4)
+    # One float64 input promotes to float64 (the float64 computation).
+    mixed = gj.evaluate(p.astype(np.float32), n, mu=MU)
+    assert mixed.quality.dtype == jnp.float64
+    np.testing.assert_array_equal(np.asarray(mixed.force_closure), np.asarray(
+        gj.evaluate(p.astype(np.float32).astype(np.float64), n, mu=MU).force_closure))
+
+
+def test_chunks(monkeypatch):
+    """A batch that crosses the chunk size gives the same results as smaller calls. The chunk is
+    made small (256 = BLOCK, the smallest compiled size) so that no new shape is compiled."""
+    assert _batch.CHUNK >= _batch.BLOCK == 256
+    p, n = _batch_of(600, seed=2)
+    monkeypatch.setattr(api, "map_grasps", functools.partial(_batch.map_grasps, chunk=_batch.BLOCK))
+    chunked = gj.evaluate(p, n, mu=MU, progress=True)
+    monkeypatch.undo()
+    pieces = [gj.evaluate(p[a:b], n[a:b], mu=MU) for a, b in ((0, 100), (100, 356), (356, 600))]
+    whole = jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *pieces)
+    assert chunked.force_closure.shape == (600,)
+    _assert_same(chunked, whole)
+    # The padding of the last chunk copies its first grasp: no spill into real results.
+    _assert_same(chunked[-1], gj.evaluate(p[-1], n[-1], mu=MU))
+
+
+def test_bucket_sizes():
+    assert _batch._bucket(1, 16384) == 256
+    assert _batch._bucket(257, 16384) == 512
+    assert _batch._bucket(16384, 16384) == 16384
+    assert _batch._bucket(10**6, 16384) == 16384
+
+
+def test_zero_size_batch():
+    for shape in ((0,), (2, 0)):
+        p = np.zeros(shape + (N, D))
+        n = np.ones(shape + (N, D))
+        ev = gj.evaluate(p, n, mu=MU)
+        assert ev.force_closure.shape == shape and ev.certificate.shape == shape + (6,)
+        assert ev.quality.dtype == jnp.float64 and ev.force_closure.dtype == bool
+        eps, vol = gj.ferrari_canny(p, n, mu=MU)
+        assert eps.shape == shape and vol.shape == shape
+    assert gj.quality(p, n, mu=MU).shape == shape
+    assert gj.min_weight(p, n, mu=MU).shape == shape
+    assert gj.force_closure(p, n, mu=MU).shape == shape
+    p2 = np.zeros((0, 3, 2))
+    assert gj.evaluate(p2, p2 + 1, mu=MU).certificate.shape == (0, 3)
