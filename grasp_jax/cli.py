@@ -1,0 +1,549 @@
+"""The ``grasp-jax`` command: sample and score grasps of an object, score a file, draw the best.
+
+Run ``grasp-jax --help`` (or ``python -m grasp_jax --help``) for the subcommands. Heavy modules
+(JAX, trimesh, matplotlib, pyarrow) are imported inside :func:`main`, after the command line has
+been read and the CPU device count chosen.
+
+Exit status: 0 on success, 2 for a user mistake (one ``grasp-jax: error: ...`` line on stderr),
+130 after ``Ctrl-C`` (and 143 after ``SIGTERM``), with no partial output file in either case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+PROG = "grasp-jax"
+DEFAULT_MU = 0.364  # tan(20 deg), the paper's friction
+DEMO_OBJECT = "glass"
+DEMO_NUM = 100_000
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+_DESCRIPTION = """\
+Force-closure and the quality Q of multi-finger grasps via central axes (Bounab, Sidobre and
+Zaatri), batched in JAX. Sample random grasps of an object and score them by the million with
+flat memory, score grasps stored in a file, or draw the best ones.
+
+With no arguments, runs the demo: 100,000 random 4-finger grasps of the built-in glass."""
+
+_EXAMPLES = """\
+examples:
+  grasp-jax                                   # the demo (same as: grasp-jax demo)
+  grasp-jax sample glass --num 1000000 --out glass.parquet
+  grasp-jax sample star --fingers 3 --num 20000 --epsilon --out star.npz --plot star.png
+  grasp-jax sample ../shared/data/meshes/ycb_025_mug.obj --fingers 4 --scheme paper
+  grasp-jax score glass.parquet --mu 0.2 --out glass_mu02.npz
+  grasp-jax show glass.parquet --top 6
+"""
+
+_NOTES = (
+    "OBJECT is a built-in name ({builtins}) or a path to a mesh (.obj, .stl, .ply, ...) or a polygon "
+    "(.csv of x,y vertices).",
+    "Result files (.npz or .parquet) hold points, normals, force_closure, quality, converged (and "
+    "epsilon, volume) per grasp plus the run's metadata; read them with "
+    "grasp_jax.storage.read_results(path), numpy.load or pyarrow.",
+    "Compiled programs are cached in ~/.cache/grasp_jax/xla (GRASP_JAX_CACHE=DIR moves it, "
+    "GRASP_JAX_CACHE=off disables it).",
+)
+
+
+def _epilog(builtins: str) -> str:
+    import textwrap
+
+    notes = "\n\n".join(textwrap.fill(n.format(builtins=builtins), width=96) for n in _NOTES)
+    return _EXAMPLES + "\n" + notes
+
+
+class _UsageError(Exception):
+    """A mistake on the command line (printed as one line, status 2)."""
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Shows defaults (except None / False, whose help says what happens) and keeps the examples'
+    line breaks."""
+
+    def __init__(self, prog):
+        super().__init__(prog, max_help_position=32, width=100)
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a mistake as one line (``grasp-jax: error: ...``) and status 2."""
+
+    def error(self, message):
+        raise _UsageError(f"{message} (see '{self.prog} --help')")
+
+
+# ---------------------------------------------------------------------------------------------
+# Argument types
+
+
+def _int(minimum: int, what: str):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
+        return value
+
+    parse.__name__ = what
+    return parse
+
+
+def _count(text: str) -> int:
+    """A positive integer that may be written 1e6 or 1_000_000."""
+    try:
+        value = float(text.replace("_", "")) if any(c in text for c in "eE.") else int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer; got {text!r}") from None
+    if not (isinstance(value, int) or (math.isfinite(value) and value == int(value))) or value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer; got {text!r}")
+    return int(value)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0; got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0; got {text!r}")
+    return value
+
+
+def _point(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated coordinates like 0,0,0.1; got {text!r}") from None
+    if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected 2 or 3 comma-separated coordinates; got {text!r}")
+    return values
+
+
+# ---------------------------------------------------------------------------------------------
+# Parser
+
+
+def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
+    g = p.add_argument_group("scoring")
+
+    def dflt(value) -> str:
+        return f" (default: the file's metadata, else {value})" if from_file else ""
+
+    g.add_argument("--mu", type=_positive_float, default=None if from_file else DEFAULT_MU,
+                   help="friction coefficient tan(alpha); 0.364 is the paper's 20 degrees" + dflt(DEFAULT_MU))
+    g.add_argument("--edges", type=_int(3, "an integer >= 3"), default=None if from_file else 8,
+                   help="edges of each linearized 3D friction cone (the paper uses 25)" + dflt(8))
+    g.add_argument("--torque-test", choices=("exact", "paper"), default=None if from_file else "exact",
+                   help="'exact' positive-spanning test (correct), or the paper's eq. (15) (only "
+                        "necessary in 3D)" + dflt("exact"))
+    g.add_argument("--epsilon", action="store_true",
+                   help="also compute the Ferrari-Canny epsilon and hull volume with qhull (slow: "
+                        "5-30 ms per grasp)")
+    g.add_argument("--origin", type=_point, default=None, metavar="X,Y[,Z]",
+                   help="point epsilon's torques are taken about (default: the object's centre of mass)")
+    g.add_argument("--torque-scale", type=_positive_float, default=None, metavar="L",
+                   help="length epsilon's torques are divided by (default: the object's radius, as GraspIt)")
+    o = p.add_argument_group("output and performance")
+    o.add_argument("--out", type=Path, default=None, metavar="FILE",
+                   help="write every grasp and its scores to FILE (.npz or .parquet), atomically")
+    o.add_argument("--chunk", type=_count, default=None, metavar="N",
+                   help="grasps per chunk (sampled, scored, written together; default 65536 on a CPU)")
+    o.add_argument("--devices", type=_int(1, "an integer >= 1"), default=None, metavar="N",
+                   help="CPU devices to split the cores into (default: one per core; ignored if XLA_FLAGS "
+                        "already sets it)")
+    o.add_argument("--distributed", action="store_true",
+                   help="join a multi-process JAX job (jax.distributed.initialize; automatic when "
+                        "JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, JAX_PROCESS_ID are set): each "
+                        "process scores its slice and writes FILE.<i>-of-<P>.<suffix>")
+    o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+
+
+def _add_sampling(p: argparse.ArgumentParser, *, num: int) -> None:
+    g = p.add_argument_group("sampling")
+    g.add_argument("--fingers", type=_int(2, "an integer >= 2"), default=4, help="contacts per grasp")
+    g.add_argument("--num", type=_count, default=num, help="grasps to sample and score (1e6 is fine)")
+    g.add_argument("--seed", type=_int(0, "an integer >= 0"), default=0, help="random seed")
+    g.add_argument("--scheme", choices=("uniform", "paper"), default="uniform",
+                   help="'uniform': all contacts uniform on the surface; 'paper': a fixed first contact "
+                        "and random others, as in the paper's experiments")
+    g.add_argument("--first-contact", type=_int(0, "a facet index >= 0"), default=None, metavar="F",
+                   help="with --scheme paper: the facet of the first contact (default: drawn from --seed)")
+
+
+def _add_plot(p: argparse.ArgumentParser, default_help: str | None = None) -> None:
+    g = p.add_argument_group("figure")
+    g.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="draw the best force-closure grasps on the object" + (f" ({default_help})" if default_help else ""))
+    g.add_argument("--top", type=_int(1, "an integer >= 1"), default=4, metavar="K",
+                   help="how many of the best grasps to draw and list")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    try:
+        from .objects import BUILTIN_NAMES
+
+        builtins = ", ".join(BUILTIN_NAMES)
+    except Exception:  # noqa: BLE001 - help must work even if objects cannot be imported
+        builtins = "glass, part, quad, star, sphere, box, cylinder, ellipsoid"
+    parser = _Parser(prog=PROG, description=_DESCRIPTION, epilog=_epilog(builtins),
+                     formatter_class=_Formatter)
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("sample", help="sample random grasps of an object and score them",
+                       description="Sample NUM random grasps of OBJECT, score each (force-closure, Q), "
+                                   "stream them to --out and print a summary.",
+                       epilog=_epilog(builtins), formatter_class=_Formatter)
+    p.add_argument("object", metavar="OBJECT", help="built-in name or mesh / polygon CSV file")
+    _add_sampling(p, num=10_000)
+    _add_scoring(p, from_file=False)
+    _add_plot(p)
+    p.set_defaults(func=_cmd_sample)
+
+    p = sub.add_parser("score", help="score grasps stored in a .npz or .parquet file",
+                       description="Score the grasps (arrays 'points' and 'normals', shape (N, n, d)) "
+                                   "of FILE, print a summary and optionally write the scores to --out.",
+                       formatter_class=_Formatter)
+    p.add_argument("file", metavar="FILE", type=Path, help=".npz or .parquet file with points and normals")
+    p.add_argument("--object", default=None,
+                   help="the object the grasps are on, for --epsilon and --plot (default: the file's metadata)")
+    _add_scoring(p, from_file=True)
+    _add_plot(p)
+    p.set_defaults(func=_cmd_score)
+
+    p = sub.add_parser("show", help="draw the best grasps of a result file on their object",
+                       description="Draw the --top best force-closure grasps of a result FILE on their "
+                                   "object and list them.", formatter_class=_Formatter)
+    p.add_argument("file", metavar="FILE", type=Path, help="result file (.npz or .parquet) with quality")
+    p.add_argument("--object", default=None, help="the object (default: the file's metadata)")
+    _add_plot(p, default_help="default: FILE with suffix .png")
+    p.set_defaults(func=_cmd_show)
+
+    p = sub.add_parser("demo", help=f"the default run: {DEMO_NUM:,} 4-finger grasps of the {DEMO_OBJECT}",
+                       description="Sample and score random grasps of a built-in object and print what was "
+                                   "found (about half a minute on two CPU cores).",
+                       formatter_class=_Formatter)
+    p.add_argument("object", metavar="OBJECT", nargs="?", default=DEMO_OBJECT,
+                   help="built-in name or mesh / polygon CSV file")
+    _add_sampling(p, num=DEMO_NUM)
+    _add_scoring(p, from_file=False)
+    _add_plot(p)
+    p.set_defaults(func=_cmd_demo)
+    return parser
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _say(args, text: str = "") -> None:
+    if not args.quiet and not getattr(args, "json", False):
+        print(text, flush=True)
+
+
+def _warn(text: str) -> None:
+    print(f"{PROG}: warning: {text}", file=sys.stderr, flush=True)
+
+
+def _check_plot_path(path: Path | None) -> Path | None:
+    if path is None:
+        return None
+    if path.suffix.lower() not in PLOT_SUFFIXES:
+        raise ValueError(f"figure {str(path)!r} must end in {', '.join(PLOT_SUFFIXES)}")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValueError(f"the directory of figure {str(path)!r} does not exist: {str(parent)!r}")
+    return path
+
+
+def _enable_compilation_cache() -> None:
+    """Keep compiled XLA programs between runs (saves seconds per command).
+
+    In ``$GRASP_JAX_CACHE`` (``off`` disables it), default ``~/.cache/grasp_jax/xla``; JAX's own
+    ``JAX_COMPILATION_CACHE_DIR`` wins when set.
+    """
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return
+    where = os.environ.get("GRASP_JAX_CACHE")
+    if where is not None and where.strip().lower() in ("", "0", "off", "no", "none", "false"):
+        return
+    if where is None:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        where = os.path.join(base, "grasp_jax", "xla")
+    try:
+        os.makedirs(where, exist_ok=True)
+    except OSError:
+        return  # read-only home and the like: run without a cache
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", where)
+
+
+def _setup(args) -> None:
+    """Devices, processes and the compilation cache, before JAX starts its backend."""
+    from . import pipeline
+
+    pipeline.configure_cpu_devices(args.devices)
+    _enable_compilation_cache()
+    if args.distributed or pipeline.distributed_requested():
+        pipeline.initialize_distributed(force=True)
+        args.distributed = True
+
+
+def _load_object(spec: str):
+    from . import objects
+
+    obj = objects.load(spec)
+    for w in getattr(obj, "warnings", ()) or ():
+        _warn(w)
+    return obj
+
+
+def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | None = None) -> Path:
+    """Draw the grasps of a :class:`grasp_jax.pipeline.BestGrasps` on ``obj`` in one figure (atomic)."""
+    import tempfile
+
+    from . import plotting
+
+    plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend, as the plotting module uses
+    k = len(best)
+    cols = k if k <= 3 else math.ceil(math.sqrt(k))
+    rows = -(-k // cols)
+    fig = plt.figure(figsize=(4.2 * cols, 4.2 * rows), dpi=100)
+    try:
+        for i in range(k):
+            label = f"#{int(best.index[i])}"
+            if obj.dim == 2:
+                ax = fig.add_subplot(rows, cols, i + 1)
+                plotting.plot_grasp_2d(_rings(obj), best.points[i], best.normals[i], mu=mu,
+                                       quality=float(best.quality[i]), ax=ax, title=label)
+            else:
+                ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
+                plotting.plot_grasp_3d(_mesh(obj), best.points[i], best.normals[i], mu=mu, num_edges=num_edges,
+                                       quality=float(best.quality[i]), ax=ax, title=label)
+        if title:
+            fig.suptitle(title, fontsize=11)
+        fig.tight_layout()
+        directory = path.parent if str(path.parent) else Path(".")
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    finally:
+        plt.close(fig)
+    return path
+
+
+def _rings(obj):
+    """What plot_grasp_2d draws for a planar object."""
+    for attr in ("rings", "polygon", "vertices"):
+        if hasattr(obj, attr):
+            return obj if attr == "rings" else getattr(obj, attr)
+    raise ValueError(f"cannot draw object {obj.name!r}: it has no polygon rings")
+
+
+def _mesh(obj):
+    """What plot_grasp_3d draws for a 3D object."""
+    if hasattr(obj, "mesh") or (hasattr(obj, "vertices") and hasattr(obj, "faces")):
+        return obj
+    raise ValueError(f"cannot draw object {obj.name!r}: it has no mesh")
+
+
+def _report(args, summary, best_lines: int = 0) -> None:
+    from . import pipeline
+
+    if args.quiet:
+        return
+    if args.json:
+        print(pipeline.summary_json(summary), flush=True)
+        return
+    print(summary.format(), flush=True)
+    if best_lines and summary.best is not None and len(summary.best) > 1:
+        print("best grasps    " + ", ".join(f"#{int(i)} Q {q:.4f}" for i, q in
+                                            zip(summary.best.index[:best_lines], summary.best.quality)))
+
+
+def _plot_summary(args, obj, summary, mu, edges) -> None:
+    if args.plot is None:
+        return
+    if summary.best is None or not len(summary.best):
+        _warn(f"no force-closure grasp: nothing drawn to {args.plot}")
+        return
+    from .pipeline import BestGrasps
+
+    best = BestGrasps(*(a[: args.top] for a in (summary.best.index, summary.best.points,
+                                                 summary.best.normals, summary.best.quality)))
+    plot_best(obj, best, mu=mu, num_edges=edges, path=args.plot,
+              title=f"{obj.name}: best {len(best)} of {summary.num:,} grasps")
+    _say(args, f"figure         {args.plot}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Commands
+
+
+def _cmd_sample(args) -> int:
+    from . import pipeline, storage
+
+    if args.out is not None:
+        storage.check_output_path(args.out)
+    _check_plot_path(args.plot)
+    _setup(args)
+    obj = _load_object(args.object)
+    summary = pipeline.run(
+        obj, args.num, args.fingers, mu=args.mu, num_edges=args.edges, seed=args.seed, scheme=args.scheme,
+        torque_test=args.torque_test, chunk=args.chunk, epsilon=args.epsilon, origin=args.origin,
+        torque_scale=args.torque_scale, out=args.out, progress=not args.quiet, top=max(args.top, 5),
+        distributed=args.distributed, object_spec=args.object, first_contact=args.first_contact,
+    )
+    _report(args, summary, best_lines=5)
+    _plot_summary(args, obj, summary, args.mu, args.edges)
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    code = _cmd_sample(args)
+    if not args.quiet and not args.json:
+        print()
+        print("next: grasp-jax sample glass --num 1e6 --out glass.parquet --plot glass.png   "
+              "(see grasp-jax --help)")
+    return code
+
+
+def _cmd_score(args) -> int:
+    from . import pipeline, storage
+
+    storage.check_input_path(args.file)
+    if args.out is not None:
+        storage.check_output_path(args.out)
+        if args.out.resolve() == args.file.resolve():
+            raise ValueError("--out must differ from the input file")
+    _check_plot_path(args.plot)
+    _setup(args)
+    meta = storage.read_metadata(args.file)
+    obj = None
+    spec = args.object or meta.get("object")
+    need_obj = (args.epsilon and (args.origin is None or args.torque_scale is None)) or args.plot is not None
+    if need_obj:
+        if spec is None:
+            raise ValueError("the file names no object: pass --object (needed for --epsilon and --plot)")
+        obj = _load_object(spec)
+    summary = pipeline.score_file(
+        args.file, mu=args.mu, num_edges=args.edges, torque_test=args.torque_test, chunk=args.chunk,
+        epsilon=args.epsilon, origin=args.origin, torque_scale=args.torque_scale, obj=obj, out=args.out,
+        progress=not args.quiet, top=max(args.top, 5),
+    )
+    _report(args, summary, best_lines=5)
+    if obj is not None:
+        _plot_summary(args, obj, summary, summary.metadata["mu"], summary.metadata["edges"])
+    return 0
+
+
+def _cmd_show(args) -> int:
+    from . import pipeline, storage
+
+    storage.check_input_path(args.file)
+    plot = args.plot if args.plot is not None else args.file.with_suffix(".png")
+    _check_plot_path(plot)
+    best, meta = pipeline.best_in_file(args.file, args.top)
+    spec = args.object or meta.get("object")
+    if spec is None:
+        raise ValueError(f"{str(args.file)!r} names no object: pass --object")
+    obj = _load_object(spec)
+    if best is None or not len(best):
+        print(f"{PROG}: no force-closure grasp in {args.file}: nothing to draw", file=sys.stderr)
+        return 1
+    if best.points.shape[-1] != obj.dim:
+        raise ValueError(f"the grasps are {best.points.shape[-1]}D but object {obj.name!r} is {obj.dim}D")
+    mu = float(meta.get("mu", DEFAULT_MU))
+    edges = int(meta.get("edges", 8))
+    plot_best(obj, best, mu=mu, num_edges=edges, path=plot,
+              title=f"{obj.name}: best {len(best)} grasps of {args.file.name}")
+    print("rank  grasp        Q")
+    for r, (i, q) in enumerate(zip(best.index, best.quality), 1):
+        print(f"{r:4d}  {int(i):9d}  {q:.4f}")
+    print(f"figure {plot}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Entry point
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    if isinstance(exc, (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)) and exc.filename:
+        text = f"{exc.strerror or text}: {exc.filename!s}"
+    return " ".join(text.split())
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that partial output is removed on the way out."""
+
+
+def _on_sigterm(signum, frame):  # pragma: no cover - exercised through a subprocess
+    raise _Terminated()
+
+
+def main(argv=None) -> int:
+    """Run the ``grasp-jax`` command line; returns the exit status."""
+    import signal
+
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
+        argv = ["demo", *argv]  # "grasp-jax" and "grasp-jax --num 5000" run the demo
+    try:
+        if hasattr(signal, "SIGTERM") and _is_main_thread():
+            signal.signal(signal.SIGTERM, _on_sigterm)
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except _UsageError as e:
+            print(f"{PROG}: error: {e}", file=sys.stderr)
+            return 2
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except _Terminated:
+        print(f"{PROG}: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    except _UsageError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as e:
+        print(f"{PROG}: error: {_one_line(e)}", file=sys.stderr)
+        return 2
+    except OSError as e:  # disk full and the like: not a mistake, but still one line
+        print(f"{PROG}: error: {_one_line(e)}", file=sys.stderr)
+        return 1
+
+
+def _is_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

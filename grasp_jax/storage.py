@@ -1,0 +1,514 @@
+"""Result files: streaming, atomic writers and readers for ``.npz`` and ``.parquet``.
+
+A result file holds one row per grasp:
+
+* ``points``, ``normals``: ``(N, n, d)`` float, the contacts (``d`` in {2, 3});
+* ``force_closure`` ``(N,)`` bool and ``quality`` ``(N,)`` float (the paper's Q);
+* ``converged`` ``(N,)`` bool (every LP of the grasp ended optimal or certified);
+* ``epsilon``, ``volume`` ``(N,)`` float when the qhull baseline was asked for;
+
+plus a metadata dictionary (object, mu, edges, fingers, seed, scheme, num, torque_test,
+grasp_jax version, date, ...).
+
+* ``.npz``: one ``.npy`` array per field (uncompressed, readable with ``numpy.load``) and the
+  metadata as a 0-d string array ``metadata`` holding JSON: ``json.loads(str(f["metadata"]))``.
+* ``.parquet``: one row per grasp; ``points`` and ``normals`` are ``fixed_size_list`` (fingers) of
+  ``fixed_size_list`` (d) of double; the metadata is JSON under the key ``grasp_jax`` of the
+  schema metadata.
+
+Writers take the grasps chunk by chunk with flat memory (``.npz``: each field is appended to a
+scratch file and the archive is assembled at the end; ``.parquet``: one row group per chunk) and
+are atomic: everything is written to a hidden temporary file in the destination directory,
+flushed, ``fsync``-ed and renamed over the destination with :func:`os.replace` only when the
+writer is closed without error. An exception, ``Ctrl-C`` or a crash leaves no file at the
+destination (a hard kill can leave a hidden ``.<name>.*.tmp`` behind, never a partial result).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+
+SUFFIXES = (".npz", ".parquet")
+#: Metadata key in a Parquet schema.
+PARQUET_KEY = b"grasp_jax"
+#: Per-grasp scalar fields and their dtypes, in file order.
+SCALAR_FIELDS = {
+    "force_closure": np.dtype(bool),
+    "quality": np.dtype(np.float64),
+    "converged": np.dtype(bool),
+    "epsilon": np.dtype(np.float64),
+    "volume": np.dtype(np.float64),
+}
+_COPY = 1 << 24  # bytes per copy step when assembling an archive
+
+
+def check_output_path(path, *, suffixes=SUFFIXES, what: str = "output file") -> Path:
+    """Validate an output path before any work is done: known suffix, existing directory.
+
+    Raises:
+        ValueError: with one sentence naming the problem.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(
+            f"{what} {str(path)!r} must end in {' or '.join(suffixes)}; got {path.suffix or 'no suffix'!r}"
+        )
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValueError(f"the directory of {what} {str(path)!r} does not exist: {str(parent)!r}")
+    if path.is_dir():
+        raise ValueError(f"{what} {str(path)!r} is a directory")
+    return path
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # not supported on this platform / filesystem
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _field_dtypes(fields) -> dict[str, np.dtype]:
+    out = {}
+    for name in fields:
+        if name in ("points", "normals"):
+            out[name] = np.dtype(np.float64)
+        elif name in SCALAR_FIELDS:
+            out[name] = SCALAR_FIELDS[name]
+        else:
+            raise ValueError(f"unknown result field {name!r}")
+    return out
+
+
+class ResultWriter:
+    """Base class of the atomic, streaming writers; use :func:`open_writer`.
+
+    Use as a context manager: leaving the block normally publishes the file, leaving it with an
+    exception (including ``KeyboardInterrupt``) removes every temporary file and publishes nothing.
+    """
+
+    def __init__(self, path, metadata: Mapping, fields, fingers: int, dim: int):
+        self.path = check_output_path(path)
+        self.directory = self.path.parent if str(self.path.parent) else Path(".")
+        self.metadata = dict(metadata)
+        self.dtypes = _field_dtypes(fields)
+        self.fingers, self.dim = int(fingers), int(dim)
+        self.count = 0
+        self._done = False
+
+    def _check(self, batch: Mapping) -> tuple[dict, int]:
+        missing = set(self.dtypes) - set(batch)
+        if missing:
+            raise ValueError(f"result chunk is missing {sorted(missing)}")
+        arrays = {}
+        rows = None
+        for name, dtype in self.dtypes.items():
+            a = np.ascontiguousarray(np.asarray(batch[name]), dtype=dtype)
+            want = (self.fingers, self.dim) if name in ("points", "normals") else ()
+            if a.shape[1:] != want or (rows is not None and len(a) != rows):
+                raise ValueError(f"result field {name!r} has shape {a.shape}; expected (rows,) + {want}")
+            rows = len(a)
+            arrays[name] = a
+        return arrays, rows
+
+    def write(self, batch: Mapping) -> None:
+        """Append one chunk: a mapping of field name to array with the same number of rows."""
+        if self._done:
+            raise ValueError("writer is closed")
+        arrays, rows = self._check(batch)
+        if rows == 0:
+            return
+        self._write(arrays)
+        self.count += rows
+
+    def close(self) -> Path:
+        """Finish the file and move it into place atomically; returns its path."""
+        if self._done:
+            return self.path
+        try:
+            self._finish()
+        except BaseException:
+            self.abort()
+            raise
+        self._done = True
+        _fsync_dir(self.directory)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop everything written so far (idempotent)."""
+        self._done = True
+        self._cleanup()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+        return False
+
+    def _temp_file(self, suffix: str = ".tmp") -> tuple[int, Path]:
+        fd, name = tempfile.mkstemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=suffix)
+        return fd, Path(name)
+
+    # subclass hooks
+    def _write(self, arrays: dict) -> None:
+        raise NotImplementedError
+
+    def _finish(self) -> None:
+        raise NotImplementedError
+
+    def _cleanup(self) -> None:
+        raise NotImplementedError
+
+
+class NpzWriter(ResultWriter):
+    """Streams each field to a scratch file; :meth:`close` assembles an uncompressed ``.npz``."""
+
+    def __init__(self, path, metadata, fields, fingers, dim):
+        super().__init__(path, metadata, fields, fingers, dim)
+        self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=".tmp"))
+        self._files = {name: open(self._scratch / f"{name}.raw", "wb") for name in self.dtypes}
+        self._archive: Path | None = None
+
+    def _write(self, arrays):
+        for name, a in arrays.items():
+            self._files[name].write(memoryview(a.reshape(-1)).cast("B"))
+
+    def _finish(self):
+        for f in self._files.values():
+            f.close()
+        fd, self._archive = self._temp_file()
+        with os.fdopen(fd, "wb") as raw:
+            with zipfile.ZipFile(raw, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+                for name, dtype in self.dtypes.items():
+                    shape = (self.count,) + ((self.fingers, self.dim) if name in ("points", "normals") else ())
+                    with zf.open(f"{name}.npy", "w", force_zip64=True) as entry:
+                        header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                                  "shape": shape}
+                        np.lib.format.write_array_header_2_0(entry, header)
+                        with open(self._scratch / f"{name}.raw", "rb") as src:
+                            shutil.copyfileobj(src, entry, _COPY)
+                with zf.open("metadata.npy", "w") as entry:
+                    np.lib.format.write_array(entry, np.array(json.dumps(self.metadata)), allow_pickle=False)
+            raw.flush()
+            os.fsync(raw.fileno())
+        os.replace(self._archive, self.path)
+        self._archive = None
+        shutil.rmtree(self._scratch, ignore_errors=True)
+
+    def _cleanup(self):
+        for f in self._files.values():
+            try:
+                f.close()
+            except OSError:
+                pass
+        shutil.rmtree(self._scratch, ignore_errors=True)
+        if self._archive is not None:
+            self._archive.unlink(missing_ok=True)
+            self._archive = None
+
+
+def _nested_list_type(fingers: int, dim: int):
+    import pyarrow as pa
+
+    return pa.list_(pa.list_(pa.float64(), dim), fingers)
+
+
+class ParquetWriter(ResultWriter):
+    """One row group per chunk, written to a temporary file that :meth:`close` renames."""
+
+    def __init__(self, path, metadata, fields, fingers, dim):
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        super().__init__(path, metadata, fields, fingers, dim)
+        self._pa = pa
+        columns = []
+        for name, dtype in self.dtypes.items():
+            if name in ("points", "normals"):
+                columns.append(pa.field(name, _nested_list_type(self.fingers, self.dim), nullable=False))
+            else:
+                columns.append(pa.field(name, pa.from_numpy_dtype(dtype), nullable=False))
+        self.schema = pa.schema(columns, metadata={PARQUET_KEY: json.dumps(self.metadata).encode()})
+        fd, self._tmp = self._temp_file()
+        self._file = os.fdopen(fd, "wb")
+        self._writer = pq.ParquetWriter(self._file, self.schema)
+
+    def _write(self, arrays):
+        pa = self._pa
+        cols = []
+        for name in self.dtypes:
+            a = arrays[name]
+            if name in ("points", "normals"):
+                inner = pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), self.dim)
+                cols.append(pa.FixedSizeListArray.from_arrays(inner, self.fingers))
+            else:
+                cols.append(pa.array(a))
+        self._writer.write_batch(pa.RecordBatch.from_arrays(cols, schema=self.schema))
+
+    def _finish(self):
+        self._writer.close()
+        self._writer = None
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self._tmp, self.path)
+        self._tmp = None
+
+    def _cleanup(self):
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:  # noqa: BLE001 - best effort while aborting
+                pass
+            self._writer = None
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        if self._tmp is not None:
+            self._tmp.unlink(missing_ok=True)
+            self._tmp = None
+
+
+def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int) -> ResultWriter:
+    """A streaming, atomic writer chosen by the suffix of ``path`` (``.npz`` or ``.parquet``).
+
+    Args:
+        path: destination; its directory must exist.
+        metadata: JSON-serializable dictionary stored with the results.
+        fields: names of the per-grasp fields to store, e.g. ``("points", "normals",
+            "force_closure", "quality")``.
+        fingers, dim: the contacts per grasp and the dimension (2 or 3).
+
+    Raises:
+        ValueError: unknown suffix, missing directory, unknown field.
+    """
+    path = check_output_path(path)
+    cls = NpzWriter if path.suffix.lower() == ".npz" else ParquetWriter
+    return cls(path, metadata, tuple(fields), fingers, dim)
+
+
+# ---------------------------------------------------------------------------------------------
+# Readers
+
+
+def check_input_path(path, *, what: str = "input file") -> Path:
+    """An existing ``.npz`` / ``.parquet`` file, or a ``ValueError`` / ``FileNotFoundError``."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} {str(path)!r} does not exist")
+    if path.is_dir():
+        raise ValueError(f"{what} {str(path)!r} is a directory")
+    if path.suffix.lower() not in SUFFIXES:
+        raise ValueError(
+            f"{what} {str(path)!r} must end in {' or '.join(SUFFIXES)}; got {path.suffix or 'no suffix'!r}"
+        )
+    return path
+
+
+class _NpyStream:
+    """Reads rows of one ``.npy`` member of a zip archive sequentially (flat memory)."""
+
+    def __init__(self, zf: zipfile.ZipFile, member: str, path: Path):
+        self._f = zf.open(member)
+        try:
+            version = np.lib.format.read_magic(self._f)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(self._f)
+            elif version == (2, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(self._f)
+            else:
+                raise ValueError(f"unsupported .npy format version {version}")
+        except ValueError as e:
+            raise ValueError(f"{str(path)!r}: member {member!r} is not a valid .npy array ({e})") from None
+        if dtype.hasobject:
+            raise ValueError(f"{str(path)!r}: array {member[:-4]!r} holds Python objects; refusing to unpickle")
+        if fortran and len(shape) > 1:
+            raise ValueError(f"{str(path)!r}: array {member[:-4]!r} is stored in Fortran order; save it C-ordered")
+        self.shape, self.dtype = tuple(shape), dtype
+        self._row = int(np.prod(shape[1:], dtype=np.int64)) * dtype.itemsize
+
+    def read(self, rows: int) -> np.ndarray:
+        data = self._f.read(rows * self._row)
+        n = len(data) // self._row if self._row else rows
+        return np.frombuffer(data, self.dtype, count=n * (self._row // self.dtype.itemsize)).reshape(
+            (n,) + self.shape[1:]
+        )
+
+    def close(self):
+        self._f.close()
+
+
+class ResultFile:
+    """A result (or grasp) file opened for reading: metadata, shapes, and chunked iteration.
+
+    Any ``.npz`` or ``.parquet`` file with ``points`` and ``normals`` of shape ``(N, n, d)`` can be
+    read, not only files written by grasp_jax (their metadata is then empty).
+    """
+
+    def __init__(self, path):
+        self.path = check_input_path(path)
+        self.format = self.path.suffix.lower()[1:]
+        try:
+            if self.format == "npz":
+                self._open_npz()
+            else:
+                self._open_parquet()
+        except (zipfile.BadZipFile, EOFError) as e:
+            raise ValueError(f"{str(self.path)!r} is not a readable .npz file ({e})") from None
+        if "points" not in self.fields or "normals" not in self.fields:
+            raise ValueError(f"{str(self.path)!r} has no 'points' and 'normals' arrays (it has {sorted(self.fields)})")
+        pshape = self.fields["points"]
+        if len(pshape) != 3 or pshape[2] not in (2, 3) or pshape[1] < 2:
+            raise ValueError(
+                f"{str(self.path)!r}: 'points' must have shape (N, fingers >= 2, 2 or 3); got {pshape}"
+            )
+        if self.fields["normals"] != pshape:
+            raise ValueError(
+                f"{str(self.path)!r}: 'normals' has shape {self.fields['normals']}, 'points' has {pshape}"
+            )
+        for name, shape in self.fields.items():
+            if shape[:1] != pshape[:1]:
+                raise ValueError(f"{str(self.path)!r}: {name!r} has {shape[0]} rows, 'points' has {pshape[0]}")
+        self.num, self.fingers, self.dim = pshape
+
+    # npz -----------------------------------------------------------------------------------
+    def _open_npz(self):
+        with zipfile.ZipFile(self.path) as zf:
+            members = [m for m in zf.namelist() if m.endswith(".npy")]
+            self.metadata = {}
+            self.fields = {}
+            for m in members:
+                name = m[:-4]
+                if name == "metadata":
+                    with zf.open(m) as f:
+                        meta = np.lib.format.read_array(f, allow_pickle=False)
+                    try:
+                        self.metadata = json.loads(str(meta))
+                    except json.JSONDecodeError:
+                        raise ValueError(f"{str(self.path)!r}: 'metadata' is not JSON") from None
+                    continue
+                stream = _NpyStream(zf, m, self.path)
+                stream.close()
+                self.fields[name] = stream.shape
+
+    def _iter_npz(self, columns, chunk):
+        with zipfile.ZipFile(self.path) as zf:
+            streams = {c: _NpyStream(zf, f"{c}.npy", self.path) for c in columns}
+            try:
+                for start in range(0, self.num, chunk):
+                    rows = min(chunk, self.num - start)
+                    out = {}
+                    for c, s in streams.items():
+                        a = s.read(rows)
+                        if len(a) != rows:
+                            raise ValueError(f"{str(self.path)!r}: array {c!r} is truncated")
+                        out[c] = a
+                    yield out
+            finally:
+                for s in streams.values():
+                    s.close()
+
+    # parquet -------------------------------------------------------------------------------
+    def _open_parquet(self):
+        import pyarrow.parquet as pq
+
+        try:
+            self._pq = pq.ParquetFile(self.path)
+        except Exception as e:  # noqa: BLE001 - pyarrow raises several types for a bad file
+            raise ValueError(f"{str(self.path)!r} is not a readable .parquet file ({e})") from None
+        schema = self._pq.schema_arrow
+        raw = (schema.metadata or {}).get(PARQUET_KEY)
+        try:
+            self.metadata = json.loads(raw) if raw else {}
+        except json.JSONDecodeError:
+            raise ValueError(f"{str(self.path)!r}: the grasp_jax schema metadata is not JSON") from None
+        num = self._pq.metadata.num_rows
+        self.fields = {}
+        first = None
+        for name in schema.names:
+            if name in ("points", "normals"):
+                if first is None:
+                    first = self._first_row_shape(name)
+                self.fields[name] = (num,) + first
+            else:
+                self.fields[name] = (num,)
+
+    def _first_row_shape(self, name):
+        import pyarrow as pa
+
+        typ = self._pq.schema_arrow.field(name).type
+        if pa.types.is_fixed_size_list(typ) and pa.types.is_fixed_size_list(typ.value_type):
+            return (typ.list_size, typ.value_type.list_size)
+        if self._pq.metadata.num_rows == 0:
+            return (0, 0)
+        batch = next(self._pq.iter_batches(batch_size=1, columns=[name]))
+        row = batch.column(0).to_pylist()[0]
+        return (len(row), len(row[0]) if row else 0)
+
+    def _iter_parquet(self, columns, chunk):
+        for batch in self._pq.iter_batches(batch_size=chunk, columns=list(columns)):
+            out = {}
+            for c in columns:
+                col = batch.column(c)
+                if c in ("points", "normals"):
+                    flat = col.flatten().flatten().to_numpy(zero_copy_only=False)
+                    if flat.size != len(col) * self.fingers * self.dim:
+                        raise ValueError(f"{str(self.path)!r}: rows of {c!r} do not all have shape "
+                                         f"({self.fingers}, {self.dim})")
+                    out[c] = flat.reshape(len(col), self.fingers, self.dim)
+                else:
+                    out[c] = col.to_numpy(zero_copy_only=False)
+            yield out
+
+    # public --------------------------------------------------------------------------------
+    def iter_chunks(self, columns=("points", "normals"), chunk: int = 65536) -> Iterator[dict]:
+        """Yield dictionaries of ``chunk`` rows of the given columns (the last may be shorter)."""
+        missing = [c for c in columns if c not in self.fields]
+        if missing:
+            raise ValueError(f"{str(self.path)!r} has no {missing} (it has {sorted(self.fields)})")
+        if self.format == "npz":
+            return self._iter_npz(tuple(columns), int(chunk))
+        return self._iter_parquet(tuple(columns), int(chunk))
+
+    def read(self, columns=None) -> dict[str, np.ndarray]:
+        """Every row of the given columns (default: all) in memory."""
+        columns = tuple(self.fields) if columns is None else tuple(columns)
+        parts = list(self.iter_chunks(columns, chunk=max(self.num, 1)))
+        if not parts:
+            return {c: np.zeros((0,) + self.fields[c][1:], float) for c in columns}
+        return {c: np.concatenate([p[c] for p in parts]) for c in columns}
+
+
+def read_results(path) -> tuple[dict[str, np.ndarray], dict]:
+    """Read a whole result file: ``(arrays, metadata)``.
+
+    ``arrays`` maps each stored field (``points``, ``normals``, ``force_closure``, ``quality``,
+    ...) to a NumPy array with one row per grasp; ``metadata`` is the stored dictionary (empty
+    for files not written by grasp_jax).
+    """
+    f = ResultFile(path)
+    return f.read(), dict(f.metadata)
+
+
+def read_metadata(path) -> dict:
+    """Only the metadata dictionary of a result file."""
+    return dict(ResultFile(path).metadata)

@@ -1,0 +1,224 @@
+"""The ``grasp-jax`` command line, run as a subprocess (``python -m grasp_jax``).
+
+Runs are small (2,000 grasps) and share one XLA compilation cache, so only the first run of a
+session compiles.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from grasp_jax import storage
+
+NUM = "2000"
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    pytest.importorskip("grasp_jax.objects")
+    pytest.importorskip("grasp_jax.sampling")
+    e = dict(os.environ)
+    e.pop("XLA_FLAGS", None)
+    e["GRASP_JAX_CACHE"] = str(tmp_path_factory.getbasetemp() / "xla-cache")
+    e["PYTHONWARNINGS"] = "ignore::DeprecationWarning"
+    return e
+
+
+def grasp_jax(*args, env, cwd, timeout=300, check=True):
+    out = subprocess.run([sys.executable, "-m", "grasp_jax", *map(str, args)], env=env, cwd=cwd,
+                         capture_output=True, text=True, timeout=timeout)
+    if check:
+        assert out.returncode == 0, f"rc {out.returncode}\n{out.stdout}\n{out.stderr}"
+        assert "Traceback" not in out.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def sampled(env, tmp_path_factory):
+    """``sample glass`` to .npz (with a figure) and to .parquet, same seed."""
+    d = tmp_path_factory.mktemp("cli")
+    npz = grasp_jax("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.npz", "--plot", "g.png",
+                    env=env, cwd=d)
+    parquet = grasp_jax("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.parquet", "--quiet",
+                        env=env, cwd=d)
+    return d, npz, parquet
+
+
+def test_sample_writes_both_formats_with_metadata(sampled):
+    d, npz, parquet = sampled
+    a, meta_a = storage.read_results(d / "g.npz")
+    b, meta_b = storage.read_results(d / "g.parquet")
+    assert set(a) == {"points", "normals", "force_closure", "quality", "converged"}
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name])
+    assert a["points"].shape == (2000, 4, 3)
+    for meta in (meta_a, meta_b):
+        assert meta["object"] == "glass" and meta["num"] == 2000 and meta["seed"] == 5
+        assert meta["mu"] == 0.364 and meta["edges"] == 8 and meta["fingers"] == 4
+        assert meta["scheme"] == "uniform" and meta["torque_test"] == "exact"
+        assert "grasp_jax_version" in meta and "date" in meta
+    # The summary: force-closure rate, Q percentiles, speed, output path; --quiet prints nothing.
+    out = npz.stdout
+    rate = 100 * a["force_closure"].mean()
+    assert f"({rate:.1f}%)" in out and "grasps/s" in out and "p50" in out and "g.npz" in out
+    assert parquet.stdout == ""
+    assert (d / "g.png").stat().st_size > 10_000
+    assert sorted(p.name for p in d.iterdir()) == ["g.npz", "g.parquet", "g.png"]
+
+
+def test_score_round_trip_gives_the_same_verdicts(sampled, env):
+    d, _, _ = sampled
+    out = grasp_jax("score", "g.parquet", "--out", "rescored.npz", "--json", env=env, cwd=d)
+    summary = json.loads(out.stdout)
+    assert summary["agree"] == 2000
+    a, _ = storage.read_results(d / "g.parquet")
+    b, meta = storage.read_results(d / "rescored.npz")
+    np.testing.assert_array_equal(a["force_closure"], b["force_closure"])
+    np.testing.assert_array_equal(a["quality"], b["quality"])
+    assert meta["mu"] == 0.364 and meta["object"] == "glass"  # taken from the file
+    # Other settings give other verdicts.
+    out = grasp_jax("score", "g.npz", "--mu", "0.1", "--json", env=env, cwd=d)
+    assert json.loads(out.stdout)["force_closure"] < a["force_closure"].sum()
+
+
+def test_score_a_plain_user_file(env, tmp_path):
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(300, 3, 2))
+    np.savez_compressed(tmp_path / "mine.npz", points=p, normals=p / np.linalg.norm(p, axis=-1, keepdims=True))
+    out = grasp_jax("score", "mine.npz", "--json", env=env, cwd=tmp_path)
+    assert json.loads(out.stdout)["num"] == 300
+
+
+def test_show_draws_the_best_grasps(sampled, env):
+    d, _, _ = sampled
+    out = grasp_jax("show", "g.npz", "--top", "3", env=env, cwd=d)
+    assert (d / "g.png").exists()
+    a, _ = storage.read_results(d / "g.npz")
+    best = int(np.argmax(np.where(a["force_closure"], a["quality"], -1)))
+    assert out.stdout.splitlines()[1].split()[:2] == ["1", str(best)]
+    grasp_jax("show", "g.parquet", "--plot", "best.png", env=env, cwd=d)
+    assert (d / "best.png").stat().st_size > 10_000
+
+
+def test_demo_and_help(env, tmp_path):
+    out = grasp_jax("--num", "2000", env=env, cwd=tmp_path)  # no command: the demo
+    assert "glass" in out.stdout and "force-closure" in out.stdout
+    assert list(tmp_path.iterdir()) == []  # the demo writes nothing unasked
+    out = grasp_jax("--help", env=env, cwd=tmp_path)
+    assert "examples:" in out.stdout and "sample" in out.stdout
+    out = grasp_jax("sample", "--help", env=env, cwd=tmp_path)
+    assert "(default: 10000)" in out.stdout and "(default: 0.364)" in out.stdout
+
+
+MISTAKES = [
+    (["sample", "glass", "--num", "-3"], "--num"),
+    (["sample", "glass", "--num", "1.5"], "--num"),
+    (["sample", "glass", "--mu", "0"], "--mu"),
+    (["sample", "glass", "--fingers", "1"], "--fingers"),
+    (["sample", "glass", "--edges", "2"], "--edges"),
+    (["sample", "no_such_object"], "no_such_object"),
+    (["sample", "missing.obj"], "missing.obj"),
+    (["sample", "garbage.obj"], "garbage.obj"),
+    (["sample", "glass", "--out", "r.csv"], "r.csv"),
+    (["sample", "glass", "--out", "no/dir/r.npz"], "does not exist"),
+    (["sample", "glass", "--plot", "no/dir/f.png"], "does not exist"),
+    (["score", "missing.npz"], "missing.npz"),
+    (["score", "garbage.obj"], "must end in"),
+    (["score", "empty.npz"], "points"),
+    (["show", "missing.parquet"], "missing.parquet"),
+    (["frobnicate"], "frobnicate"),
+    (["sample"], "OBJECT"),
+]
+
+
+def _check_mistake(args, expect, code, stdout, stderr):
+    lines = stderr.strip().splitlines()
+    assert code == 2, (args, stderr)
+    assert len(lines) == 1, (args, stderr)
+    assert lines[0].startswith("grasp-jax: error: "), (args, stderr)
+    assert expect in lines[0], (args, stderr)
+    assert stdout == ""
+
+
+@pytest.fixture
+def mistakes_dir(tmp_path):
+    (tmp_path / "garbage.obj").write_text("this is not a mesh\n\x00\x01")
+    np.savez(tmp_path / "empty.npz", other=np.zeros(2))
+    return tmp_path
+
+
+def test_user_mistakes_exit_2_with_one_line(env, mistakes_dir, monkeypatch, capsys):
+    """Every mistake through main() in this process; the same, in real processes, below."""
+    import jax
+
+    from grasp_jax.cli import main
+
+    jax.devices()  # main() must not change this process's device count (XLA_FLAGS) ...
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # ... nor leave it set
+    monkeypatch.chdir(mistakes_dir)
+    monkeypatch.setenv("GRASP_JAX_CACHE", "off")
+    for args, expect in MISTAKES:
+        code = main(args)
+        out = capsys.readouterr()
+        _check_mistake(args, expect, code, out.out, out.err)
+    assert sorted(p.name for p in mistakes_dir.iterdir()) == ["empty.npz", "garbage.obj"]
+
+
+def test_user_mistakes_in_a_process(env, mistakes_dir):
+    cases = [MISTAKES[k] for k in (0, 2, 5, 7, 9, 11, 15)]
+    procs = [
+        (args, expect, subprocess.Popen([sys.executable, "-m", "grasp_jax", *args], env=env, cwd=mistakes_dir,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        for args, expect in cases
+    ]
+    for args, expect, proc in procs:
+        stdout, stderr = proc.communicate(timeout=300)
+        assert "Traceback" not in stderr
+        _check_mistake(args, expect, proc.returncode, stdout, stderr)
+    assert sorted(p.name for p in mistakes_dir.iterdir()) == ["empty.npz", "garbage.obj"]
+
+
+def _start_long_run(env, cwd, out):
+    return subprocess.Popen(
+        [sys.executable, "-m", "grasp_jax", "sample", "glass", "--num", "5000000", "--chunk", NUM,
+         "--out", out, "--quiet"],
+        env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+
+
+def _wait_for_data(proc, directory: Path, timeout=120):
+    """Until the run has written its first chunk to a temporary file."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        sizes = [f.stat().st_size for f in directory.rglob("*") if f.is_file()]
+        if sizes and max(sizes) > 0:
+            return
+        time.sleep(0.2)
+    proc.kill()
+    pytest.fail("the run wrote nothing")
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGKILL, -9)])
+def test_interrupted_run_leaves_no_output(env, tmp_path, sig, code):
+    proc = _start_long_run(env, tmp_path, "big.npz" if sig != signal.SIGTERM else "big.parquet")
+    _wait_for_data(proc, tmp_path)
+    proc.send_signal(sig)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == code, stderr
+    assert "Traceback" not in stderr
+    names = [p.name for p in tmp_path.iterdir()]
+    assert "big.npz" not in names and "big.parquet" not in names
+    if sig != signal.SIGKILL:  # a clean exit removes its temporary files too, and says why
+        assert names == []
+        word = "interrupted" if sig == signal.SIGINT else "terminated"
+        assert stderr.strip().splitlines() == [f"grasp-jax: {word}"]
