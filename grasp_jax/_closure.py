@@ -29,8 +29,10 @@ from ._wrench import cross, primitive_wrenches
 
 def _arm_scale(points: jax.Array) -> jax.Array:
     """Largest distance from ``c_1`` to another contact (1 where all contacts coincide)."""
-    r = jnp.sqrt(jnp.max(jnp.sum((points - points[0]) ** 2, axis=-1)))
-    return jnp.where(r > tolerances(points.dtype).tiny, r, 1.0)
+    sq = jnp.max(jnp.sum((points - points[0]) ** 2, axis=-1))
+    # Double where: sqrt's derivative at 0 is inf, and a single where would turn it into NaN.
+    spread = sq > tolerances(points.dtype).tiny ** 2
+    return jnp.where(spread, jnp.sqrt(jnp.where(spread, sq, 1.0)), 1.0)
 
 
 def _torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:

@@ -105,6 +105,11 @@ def _cholesky(M: jax.Array, pivot_tol: float, huge: float) -> list[list[jax.Arra
     return L
 
 
+def _huge(dtype) -> float:
+    """The value that replaces a degenerate Cholesky pivot."""
+    return 1e64 if dtype == jnp.float64 else 1e30
+
+
 def _cho_solve(L: list[list[jax.Array]], r: jax.Array) -> jax.Array:
     k = len(L)
     z: list[jax.Array] = []
@@ -136,6 +141,33 @@ def _init(lp: LP) -> _State:
         done=jnp.zeros((), bool),
         iterations=jnp.zeros((), jnp.int32),
     )
+
+
+def _inconsistency(lp: LP) -> tuple[jax.Array, jax.Array]:
+    """A Farkas certificate in the left null space of ``A``: ``A^T y = 0``, ``b . y = 1``.
+
+    It exists iff ``b`` is not in the range of ``A`` (rank-deficient ``A``, inconsistent ``b``;
+    for example all contacts of a grasp on one flat face). The interior-point iterations cannot
+    find it: the normal matrix is singular along exactly that direction, and :func:`_cholesky`
+    replaces its pivot. So it is read off up front from the least-squares residual of ``A x = b``,
+    ``r = b - A A^T (G + e I)^{-1} b = e (G + e I)^{-1} b`` with ``G = A A^T`` and ``e`` the rank
+    tolerance times the mean eigenvalue of ``G``: ``r`` is ``b``'s component in the null space of
+    ``A^T`` up to ``O(e / lambda)`` on the rest. It certifies when ``|A^T r| <= sqrt(rank) |A| |r|``,
+    i.e. when ``r`` lies along eigenvalues below the rank tolerance. Returns ``(certified, y)``.
+    """
+    A, b, _ = lp
+    tol = tolerances(A.dtype)
+    G = A @ A.T
+    rows = G.shape[0]
+    eps = tol.rank * jnp.maximum(jnp.trace(G) / rows, tol.tiny)
+    L = _cholesky(G + eps * jnp.eye(rows, dtype=G.dtype), tol.pivot, _huge(A.dtype))
+    r = eps * _cho_solve(L, b)
+    br = b @ r
+    atr = A.T @ r
+    certified = (br > tol.rank * (b @ b)) & (
+        jnp.sum(atr * atr) <= tol.rank * jnp.trace(G) * jnp.sum(r * r)
+    )
+    return certified, r / jnp.where(certified, br, 1.0)
 
 
 def _measures(lp: LP, st: _State, rp, rd, aty):
@@ -173,7 +205,7 @@ def _step(lp: LP, st: _State) -> _State:
     """One Mehrotra predictor-corrector step of the homogeneous self-dual model."""
     A, b, c = lp
     tol = tolerances(A.dtype)
-    huge = 1e64 if A.dtype == jnp.float64 else 1e30
+    huge = _huge(A.dtype)
     x, y, s, tau, kappa = st.x, st.y, st.s, st.tau, st.kappa
     n = x.shape[0]
 
@@ -241,10 +273,12 @@ def _step(lp: LP, st: _State) -> _State:
     return new._replace(done=done | ~ok, iterations=jnp.where(done, st.iterations, st.iterations + 1))
 
 
-def _finish(lp: LP, st: _State) -> LPSolution:
+def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array) -> LPSolution:
     A, b, c = lp
     rp, rd, aty = _residuals(lp, st)
     optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
+    optimal = optimal & ~inconsistent
+    infeasible = infeasible | inconsistent
     status = jnp.where(
         optimal, Status.OPTIMAL, jnp.where(infeasible, Status.INFEASIBLE, Status.NOT_CONVERGED)
     ).astype(jnp.int8)
@@ -252,8 +286,9 @@ def _finish(lp: LP, st: _State) -> LPSolution:
     by = b @ st.y
     y_opt = st.y / st.tau
     y_inf = st.y / jnp.where(by > 0, by, 1.0)
-    y = jnp.where(optimal, y_opt, jnp.where(infeasible, y_inf, 0.0))
+    y = jnp.where(optimal, y_opt, jnp.where(inconsistent, y_null, jnp.where(infeasible, y_inf, 0.0)))
     value = jnp.where(optimal, c @ x, 0.0)
+    residual = jnp.where(inconsistent, 0.0, residual)
     return LPSolution(x, y, value, status, st.iterations, residual)
 
 
@@ -280,7 +315,9 @@ def solve(*lps: LP, iterations: int | None = None) -> tuple[LPSolution, ...]:
             )
     if iterations is None:
         iterations = default_iterations(max(lp.A.shape[1] for lp in lps))
-    states = tuple(_init(lp) for lp in lps)
+    checks = tuple(_inconsistency(lp) for lp in lps)
+    # An inconsistent problem is certified before the first step and frozen.
+    states = tuple(_init(lp)._replace(done=inconsistent) for lp, (inconsistent, _) in zip(lps, checks))
 
     def body(carry):
         k, sts = carry
@@ -291,7 +328,7 @@ def solve(*lps: LP, iterations: int | None = None) -> tuple[LPSolution, ...]:
         return (k < iterations) & ~jnp.all(jnp.stack([st.done for st in sts]))
 
     _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
-    return tuple(_finish(lp, st) for lp, st in zip(lps, states))
+    return tuple(_finish(lp, st, *check) for lp, st, check in zip(lps, states, checks))
 
 
 def optimal_value(lp: LP, solution: LPSolution) -> jax.Array:

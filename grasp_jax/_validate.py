@@ -94,5 +94,16 @@ def check_grasps(points, normals, tangents=None):
         if np.any(lengths <= 1e-12):
             bad = np.argwhere(lengths <= 1e-12)[0]
             raise ValueError(f"normals must be non-zero; found a zero-length normal at index {tuple(bad)}")
+        if tangents is not None:
+            unit = normals / lengths[..., None]
+            along = np.sum(tangents * unit, axis=-1, keepdims=True)
+            across = np.linalg.norm(tangents - along * unit, axis=-1)
+            flat = across <= 1e-9 * np.maximum(np.linalg.norm(tangents, axis=-1), 1e-300)
+            if np.any(flat):
+                bad = tuple(np.argwhere(flat)[0])
+                raise ValueError(
+                    f"tangents must point along the tangent plane of their contact; the tangent at "
+                    f"index {bad} is zero or parallel to its normal"
+                )
     tangents = None if tangents is None else tangents.astype(dtype)
     return points.astype(dtype), normals.astype(dtype), tangents, points.shape[:-2]

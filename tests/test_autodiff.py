@@ -240,11 +240,6 @@ def test_gradients_finite_on_degenerate_grasps(d):
     _finite_grads(d, P, Nrm)
 
 
-@pytest.mark.xfail(
-    reason="BUG: when all contacts coincide, the grasp size in _closure._arm_scale is sqrt(0) and "
-    "its derivative is inf; jnp.where does not mask it, so d quality / d points is NaN",
-    strict=True,
-)
 @pytest.mark.parametrize("d", [2, 3])
 def test_gradients_finite_when_all_contacts_coincide(d):
     n = N[d]

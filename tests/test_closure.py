@@ -43,9 +43,9 @@ class Case:
 
     @property
     def single_face(self):
-        """Grasps whose contacts all have the same normal (all on one flat face): their min-weight
-        LP (and in 3D with 3 contacts, the torque LP) is infeasible with a rank-deficient
-        constraint matrix, see :func:`test_single_face_grasps_min_weight`."""
+        """Grasps whose contacts all have the same normal (on one flat face, or on parallel faces
+        facing the same way): their min-weight LP is infeasible with a rank-deficient constraint
+        matrix, see :func:`test_single_face_grasps_min_weight`."""
         return np.all(np.abs(self.normals - self.normals[:, :1]) < 1e-12, axis=(1, 2))
 
     @property
@@ -157,10 +157,10 @@ def test_statuses_and_invariants(cases, key):
 
 @pytest.mark.parametrize("key", KEYS, ids=_ids(KEYS))
 def test_lp_statuses(cases, key):
-    """Every LP ends OPTIMAL or certified INFEASIBLE: no NOT_CONVERGED on ordinary grasps
-    (single-face grasps: see test_single_face_grasps_*)."""
+    """Every LP ends OPTIMAL or certified INFEASIBLE: no NOT_CONVERGED, single-face grasps
+    (rank-deficient, inconsistent LPs) included."""
     c = cases(key)
-    ev = c.ev[~c.single_face]
+    ev = c.ev
     assert np.all(np.isin(ev.torque_status, [gj.Status.OPTIMAL, gj.Status.INFEASIBLE])), np.flatnonzero(
         ev.torque_status == gj.Status.NOT_CONVERGED)
     assert np.all(ev.converged)
@@ -196,8 +196,7 @@ def test_force_closure_vs_min_weight(cases, key):
 def test_min_weight_vs_highs(cases, key):
     """gj.min_weight is HiGHS's ``l*`` (0 for rank-deficient wrenches, -inf for an infeasible LP)."""
     c = cases(key)
-    ok = ~c.single_face
-    margin, l_ref = c.margin[ok], c.l_ref[ok]
+    margin, l_ref = c.margin, c.l_ref
     finite = np.isfinite(l_ref)
     np.testing.assert_allclose(margin[finite], l_ref[finite], atol=1e-7, rtol=1e-6)
     np.testing.assert_array_equal(margin[~finite], l_ref[~finite])
@@ -271,7 +270,7 @@ def test_certificates(cases, key):
     fc = c.ev.force_closure
     np.testing.assert_array_equal(cert[fc], 0.0)
     np.testing.assert_allclose(np.linalg.norm(cert[~fc], axis=1), 1.0, rtol=1e-9)
-    for k in np.flatnonzero(~fc & ~c.single_face):
+    for k in np.flatnonzero(~fc):
         w = reference.wrenches(c.points[k], c.normals[k], MU, c.m)
         scale = np.abs(w).max()
         assert (w @ cert[k]).min() >= -1e-6 * scale, (k, c.labels[k], (w @ cert[k]).min())
@@ -315,12 +314,11 @@ def test_public_wrappers_match_evaluate(cases):
     """gj.force_closure / gj.min_weight (concrete, chunked path) agree with the results computed
     under jit (and emit no warning: pytest turns warnings into errors). gj.quality: see
     test_autodiff and test_batching."""
-    c = cases((2, 3, 8))
-    ok = ~c.single_face
-    points, normals = c.points[ok], c.normals[ok]
-    fc = np.asarray(gj.force_closure(points, normals, mu=MU))
-    np.testing.assert_array_equal(fc, c.ev.force_closure[ok])
-    np.testing.assert_allclose(np.asarray(gj.min_weight(points, normals, mu=MU)), c.margin[ok], atol=1e-12)
+    c = cases((2, 2, 8))  # single-face grasps included: no "did not converge" warning
+    assert c.single_face.any()
+    fc = np.asarray(gj.force_closure(c.points, c.normals, mu=MU))
+    np.testing.assert_array_equal(fc, c.ev.force_closure)
+    np.testing.assert_allclose(np.asarray(gj.min_weight(c.points, c.normals, mu=MU)), c.margin, atol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -347,31 +345,29 @@ def test_single_face_grasps_are_sampled(cases):
     np.testing.assert_array_equal(c.margin[c.single_face], 0.0)
 
 
-@pytest.mark.xfail(
-    reason="BUG: all contacts on one face (equal normals) make the min-weight LP infeasible with a "
-    "rank-deficient matrix; the solver ends NOT_CONVERGED, so gj.min_weight returns 0 instead of "
-    "-inf (and warns 'did not converge' on the concrete path)",
-    strict=True,
-)
 @pytest.mark.parametrize("key", [(2, 2, 8), (3, 3, 8)], ids=_ids([(2, 2, 8), (3, 3, 8)]))
 def test_single_face_grasps_min_weight(cases, key):
+    """All contacts on one face: the min-weight LP is infeasible with a rank-deficient constraint
+    matrix (the sum of the normal force components equals the weight row), which the solver
+    certifies up front from the null space of ``A^T``."""
     c = cases(key)
     sel = c.single_face
     assert sel.any()
     np.testing.assert_array_equal(c.margin[sel], c.l_ref[sel])
 
 
-@pytest.mark.xfail(
-    reason="BUG: 3 contacts on one flat face in 3D make the torque min-weight LP infeasible with a "
-    "rank-deficient matrix; it ends NOT_CONVERGED (gj.evaluate warns) and the certificate, taken "
-    "from the Gram null vector instead, is not a separating direction (u . w < 0)",
-    strict=True,
-)
 def test_single_face_grasps_torque_lp(cases):
+    """Three contacts with one normal in 3D: the torque LP ends OPTIMAL or INFEASIBLE, never
+    NOT_CONVERGED; on one plane (the constructed grasp) it is infeasible with a rank-deficient
+    matrix; the certificate separates every primitive wrench."""
     c = cases((3, 3, 8))
     sel = np.flatnonzero(c.single_face)
     assert len(sel)
-    np.testing.assert_array_equal(c.ev.torque_status[sel], gj.Status.INFEASIBLE)
+    assert np.all(np.isin(c.ev.torque_status[sel], [gj.Status.OPTIMAL, gj.Status.INFEASIBLE]))
+    constructed = sel[c.labels[sel] == "constructed single face"]
+    assert len(constructed) == 1
+    np.testing.assert_array_equal(c.ev.torque_status[constructed], gj.Status.INFEASIBLE)
+    assert not np.any(c.ev.torque_span[sel])
     for k in sel:
         w = reference.wrenches(c.points[k], c.normals[k], MU, c.m)
         assert (w @ c.ev.certificate[k]).min() >= -1e-6 * np.abs(w).max(), k

@@ -149,11 +149,6 @@ def test_bad_tangents(func, case):
         func(p, n, tangents=t)
 
 
-@pytest.mark.xfail(
-    reason="BUG: a tangent that is zero or parallel to its normal has no direction in the tangent "
-    "plane; it is accepted and the friction pyramid silently collapses to its axis (mu = 0)",
-    strict=True,
-)
 @pytest.mark.parametrize("func", ALL, ids=IDS)
 @pytest.mark.parametrize("kind", ["zero", "parallel"])
 def test_degenerate_tangents(func, kind):

@@ -148,11 +148,6 @@ def test_mixed_batch_and_rank_deficient():
             assert aty.max() <= 1e-6 * max(1.0, np.abs(aty).max())
 
 
-@pytest.mark.xfail(
-    reason="BUG: a rank-deficient A with inconsistent b (only Farkas certificates have A^T y = 0) "
-    "ends NOT_CONVERGED at any iteration budget instead of INFEASIBLE",
-    strict=True,
-)
 def test_rank_deficient_inconsistent_is_infeasible():
     rng = np.random.default_rng(8)
     problems = [_rank_deficient(rng, "inconsistent") for _ in range(BATCH)]
