@@ -27,6 +27,14 @@ PAPER = {"quad": (3, (0.940, 0.766, 0.538)), "star": (4, (0.939, 0.651, 0.394))}
 PAPER_EPS_QUAD = (0.173, 0.088, 0.026)
 
 
+
+def _chain(values) -> str:
+    """``0.9 > 0.7 < 0.8``: the values with the relation between neighbours."""
+    text = f"{values[0]:.3f}"
+    for a, b in zip(values[:-1], values[1:]):
+        text += f" {'>' if a > b else '<' if a < b else '='} {b:.3f}"
+    return text
+
 def main():
     ap = parser("paper_fig6", __doc__)
     ap.add_argument("--num", type=int, default=1000, help="random grasps per object and finger count")
@@ -86,8 +94,7 @@ def main():
             paper_eps = PAPER_EPS_QUAD[c] if name == "quad" else float("nan")
             examples.append([f"({letter})", name, fingers, t, q[k], eps[k], paper_eps, vol[k]])
         qs, es = q[chosen], eps[chosen]
-        fig_rows.append([name, fingers, " > ".join(f"{x:.3f}" for x in qs),
-                         " , ".join(f"{x:.3f}" for x in es),
+        fig_rows.append([name, fingers, _chain(qs), _chain(es),
                          bool(np.all(np.diff(qs) < 0) and np.all(np.diff(es) < 0))])
     fig.tight_layout()
     fig.savefig(out / "fig6_grasps.png", bbox_inches="tight")

@@ -115,15 +115,15 @@ def main():
 
     # Table-I-like examples: grasps at the 50th and 90th Q percentile of the qhull-scored sample.
     examples, shown = [], []
-    letters = iter("abcdefg")
+    letters = iter("abcdefg")  # the paper's letters: fixed by (object, fingers), even when skipped
     for name, fingers, count in EXAMPLES:
+        mine = [next(letters) for _ in range(count)]
         if (name, fingers) not in data or len(data[name, fingers]["q"]) == 0:
             continue
         d = data[name, fingers]
         order = np.argsort(d["q"])
-        for frac in (0.5, 0.9)[:count]:
+        for letter, frac in zip(mine, (0.5, 0.9)):
             k = order[min(int(frac * len(order)), len(order) - 1)]
-            letter = next(letters)
             pq, pe, pv = PAPER_TABLE[letter]
             examples.append([f"({letter})", name, fingers, d["q"][k], d["eps"][k], d["vol"][k], pq, pe, pv])
             shown.append((letter, name, fingers, d["p"][k], d["n"][k], d["q"][k], d["eps"][k]))
@@ -150,17 +150,18 @@ def main():
     lines.append(table(["object", "fingers", "grasps", "FC rate", "Q p10", "Q p50", "Q p90", "eps sample",
                         "eps p10", "eps p50", "eps p90", "V_ch p50", "Spearman(Q, eps)", "Spearman(Q, V_ch)",
                         "unconverged"], stats))
-    lines.append("\n## Across finger counts (the paper: Q favours fewer fingers, epsilon more)\n")
-    lines.append("Median Q over all force-closure grasps and median epsilon over the qhull-scored sample, "
-                 "for "
-                 + " / ".join(str(f) for f in args.fingers) + f" fingers. P(Q: {args.fingers[0]} > "
-                 f"{args.fingers[-1]}): over every pair of a {args.fingers[0]}-finger and a "
-                 f"{args.fingers[-1]}-finger grasp of the qhull-scored samples, how often Q rates the "
-                 "one with fewer fingers higher; the same for epsilon. The paper's claim reads "
-                 "P(Q) > 0.5 > P(eps).\n")
-    lines.append(table(["object", "median Q", "median epsilon", "Q falls with n", "epsilon rises with n",
-                        f"P(Q: {args.fingers[0]} > {args.fingers[-1]})",
-                        f"P(eps: {args.fingers[0]} > {args.fingers[-1]})"], across))
+    if len(set(args.fingers)) > 1:  # nothing to compare with a single finger count
+        lines.append("\n## Across finger counts (the paper: Q favours fewer fingers, epsilon more)\n")
+        lines.append("Median Q over all force-closure grasps and median epsilon over the qhull-scored "
+                     "sample, for "
+                     + " / ".join(str(f) for f in args.fingers) + f" fingers. P(Q: {args.fingers[0]} > "
+                     f"{args.fingers[-1]}): over every pair of a {args.fingers[0]}-finger and a "
+                     f"{args.fingers[-1]}-finger grasp of the qhull-scored samples, how often Q rates the "
+                     "one with fewer fingers higher; the same for epsilon. The paper's claim reads "
+                     "P(Q) > 0.5 > P(eps).\n")
+        lines.append(table(["object", "median Q", "median epsilon", "Q falls with n", "epsilon rises with n",
+                            f"P(Q: {args.fingers[0]} > {args.fingers[-1]})",
+                            f"P(eps: {args.fingers[0]} > {args.fingers[-1]})"], across))
     lines.append("\n## Table-I-like examples (grasps at the median and 90th percentile of Q)\n")
     lines.append("The paper's values are for its own grasps of Fig. 7, not these; its last column is the "
                  "table's `V_ch 10^-1` row as printed (the scaling is ambiguous) and its torque scaling "

@@ -35,13 +35,14 @@ examples:
   grasp-jax sample glass --num 1000000 --out glass.parquet
   grasp-jax sample star --fingers 3 --num 20000 --epsilon --out star.npz --plot star.png
   grasp-jax sample ../shared/data/meshes/ycb_025_mug.obj --fingers 4 --scheme paper
+  grasp-jax sample wrench.csv --hole wrench_hole.csv --fingers 3 --out wrench.npz
   grasp-jax score glass.parquet --mu 0.2 --out glass_mu02.npz
   grasp-jax show glass.parquet --top 6
 """
 
 _NOTES = (
     "OBJECT is a built-in name ({builtins}) or a path to a mesh (.obj, .stl, .ply, ...) or a polygon "
-    "(.csv of x,y vertices).",
+    "(.csv of x,y vertices; --hole FILE.csv cuts a hole in it, once per hole).",
     "Result files (.npz or .parquet) hold points, normals, force_closure, quality, converged (and "
     "epsilon, volume) per grasp plus the run's metadata; read them with "
     "grasp_jax.storage.read_results(path), numpy.load or pyarrow.",
@@ -182,6 +183,12 @@ def _add_sampling(p: argparse.ArgumentParser, *, num: int) -> None:
                    help="with --scheme paper: the facet of the first contact (default: drawn from --seed)")
 
 
+def _add_hole(p: argparse.ArgumentParser, *, from_file: bool = False) -> None:
+    p.add_argument("--hole", type=Path, action="append", default=None, metavar="FILE.csv",
+                   help="a hole of a polygon OBJECT (.csv): a CSV of x,y rows; repeat for several holes"
+                        + (" (default: the file's metadata)" if from_file else ""))
+
+
 def _add_plot(p: argparse.ArgumentParser, default_help: str | None = None) -> None:
     g = p.add_argument_group("figure")
     g.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
@@ -209,6 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "stream them to --out and print a summary.",
                        epilog=_epilog(builtins), formatter_class=_Formatter)
     p.add_argument("object", metavar="OBJECT", help="built-in name or mesh / polygon CSV file")
+    _add_hole(p)
     _add_sampling(p, num=10_000)
     _add_scoring(p, from_file=False)
     _add_plot(p)
@@ -221,6 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE", type=Path, help=".npz or .parquet file with points and normals")
     p.add_argument("--object", default=None,
                    help="the object the grasps are on, for --epsilon and --plot (default: the file's metadata)")
+    _add_hole(p, from_file=True)
     _add_scoring(p, from_file=True)
     _add_plot(p)
     p.set_defaults(func=_cmd_score)
@@ -230,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "object and list them.", formatter_class=_Formatter)
     p.add_argument("file", metavar="FILE", type=Path, help="result file (.npz or .parquet) with quality")
     p.add_argument("--object", default=None, help="the object (default: the file's metadata)")
+    _add_hole(p, from_file=True)
     _add_plot(p, default_help="default: FILE with suffix .png")
     p.set_defaults(func=_cmd_show)
 
@@ -239,6 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=_Formatter)
     p.add_argument("object", metavar="OBJECT", nargs="?", default=DEMO_OBJECT,
                    help="built-in name or mesh / polygon CSV file")
+    _add_hole(p)
     _add_sampling(p, num=DEMO_NUM)
     _add_scoring(p, from_file=False)
     _add_plot(p)
@@ -267,6 +278,10 @@ def _check_plot_path(path: Path | None) -> Path | None:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise ValueError(f"the directory of figure {str(path)!r} does not exist: {str(parent)!r}")
+    if path.is_dir():
+        raise ValueError(f"figure {str(path)!r} is a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write figure {str(path)!r}: its directory {str(parent)!r} is not writable")
     return path
 
 
@@ -304,26 +319,42 @@ def _setup(args) -> None:
         args.distributed = True
 
 
-def _load_object(spec: str):
+def _load_object(spec: str, holes=()):
     from . import objects
 
-    obj = objects.load(spec)
+    obj = objects.load(spec, holes=holes or ())
     for w in getattr(obj, "warnings", ()) or ():
         _warn(w)
     return obj
+
+
+def _holes(args, meta) -> list:
+    """--hole, else the holes stored with the file's object (unless --object names another)."""
+    if args.hole:
+        return args.hole
+    if args.object is not None and args.object != meta.get("object"):
+        return []
+    return list(meta.get("object_holes") or ())
 
 
 def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | None = None) -> Path:
     """Draw the grasps of a :class:`grasp_jax.pipeline.BestGrasps` on ``obj`` in one figure (atomic)."""
     import tempfile
 
-    from . import plotting
+    import numpy as np
+
+    from . import plotting, storage
 
     plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend, as the plotting module uses
     k = len(best)
     cols = k if k <= 3 else math.ceil(math.sqrt(k))
     rows = -(-k // cols)
-    fig = plt.figure(figsize=(4.2 * cols, 4.2 * rows), dpi=100)
+    height = 4.2
+    if obj.dim == 2 and hasattr(obj, "rings"):  # equal-aspect panels of a long, flat polygon
+        w, h = np.ptp(np.concatenate(obj.rings), axis=0)  # would leave rows of white space
+        if w > 0:
+            height = float(np.clip(4.2 * h / w + 0.8, 2.0, 4.2))
+    fig = plt.figure(figsize=(4.2 * cols, height * rows), dpi=100)
     try:
         for i in range(k):
             label = f"#{int(best.index[i])}"
@@ -339,7 +370,11 @@ def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | 
             fig.suptitle(title, fontsize=11)
         fig.tight_layout()
         directory = path.parent if str(path.parent) else Path(".")
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+        except OSError as exc:
+            raise ValueError(f"cannot write figure {str(path)!r}: {exc.strerror or exc}") from None
+        storage.publish_mode(fd)
         try:
             with os.fdopen(fd, "wb") as f:
                 fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
@@ -377,10 +412,7 @@ def _report(args, summary, best_lines: int = 0) -> None:
     if args.json:
         print(pipeline.summary_json(summary), flush=True)
         return
-    print(summary.format(), flush=True)
-    if best_lines and summary.best is not None and len(summary.best) > 1:
-        print("best grasps    " + ", ".join(f"#{int(i)} Q {q:.4f}" for i, q in
-                                            zip(summary.best.index[:best_lines], summary.best.quality)))
+    print(summary.format(best=max(best_lines, 1)), flush=True)
 
 
 def _plot_summary(args, obj, summary, mu, edges) -> None:
@@ -409,12 +441,13 @@ def _cmd_sample(args) -> int:
         storage.check_output_path(args.out)
     _check_plot_path(args.plot)
     _setup(args)
-    obj = _load_object(args.object)
+    obj = _load_object(args.object, args.hole)
     summary = pipeline.run(
         obj, args.num, args.fingers, mu=args.mu, num_edges=args.edges, seed=args.seed, scheme=args.scheme,
         torque_test=args.torque_test, chunk=args.chunk, epsilon=args.epsilon, origin=args.origin,
         torque_scale=args.torque_scale, out=args.out, progress=not args.quiet, top=max(args.top, 5),
         distributed=args.distributed, object_spec=args.object, first_contact=args.first_contact,
+        object_holes=args.hole,
     )
     _report(args, summary, best_lines=5)
     _plot_summary(args, obj, summary, args.mu, args.edges)
@@ -447,7 +480,7 @@ def _cmd_score(args) -> int:
     if need_obj:
         if spec is None:
             raise ValueError("the file names no object: pass --object (needed for --epsilon and --plot)")
-        obj = _load_object(spec)
+        obj = _load_object(spec, _holes(args, meta))
     summary = pipeline.score_file(
         args.file, mu=args.mu, num_edges=args.edges, torque_test=args.torque_test, chunk=args.chunk,
         epsilon=args.epsilon, origin=args.origin, torque_scale=args.torque_scale, obj=obj, out=args.out,
@@ -469,7 +502,7 @@ def _cmd_show(args) -> int:
     spec = args.object or meta.get("object")
     if spec is None:
         raise ValueError(f"{str(args.file)!r} names no object: pass --object")
-    obj = _load_object(spec)
+    obj = _load_object(spec, _holes(args, meta))
     if best is None or not len(best):
         print(f"{PROG}: no force-closure grasp in {args.file}: nothing to draw", file=sys.stderr)
         return 1

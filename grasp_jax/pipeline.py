@@ -58,6 +58,10 @@ HISTOGRAM_BINS = 1 << 16
 #: Fewest grasps per device in one compiled call (four blocks of ``grasp_jax._batch.BLOCK``).
 MIN_ROWS = 1024
 PERCENTILES = (5, 25, 50, 75, 95)
+#: Ferrari-Canny epsilon (scale free: torques are divided by the torque scale) at or below which
+#: the summary counts a grasp as not force-closure by the baseline; qhull leaves round-off of about
+#: 1e-17 on grasps exactly on the boundary (contacts on parallel faces).
+EPSILON_ZERO = 1e-9
 
 _DEVICE_FLAG = "--xla_force_host_platform_device_count"
 _DISTRIBUTED_ENV = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
@@ -252,8 +256,9 @@ class PipelineSummary:
         seconds: wall time from the first sample to the closed output file.
         first_chunk_seconds: of which the first chunk (includes JAX compilation).
         first_chunk: grasps in the first chunk.
-        epsilon_positive: grasps with Ferrari-Canny epsilon > 0 (``None`` without epsilon).
-        epsilon_disagree: grasps where ``epsilon > 0`` and ``force_closure`` disagree.
+        epsilon_positive: grasps with Ferrari-Canny epsilon > :data:`EPSILON_ZERO` (``None``
+            without epsilon).
+        epsilon_disagree: grasps where ``epsilon > EPSILON_ZERO`` and ``force_closure`` disagree.
         epsilon_max: the largest epsilon.
         agree: with :func:`score_file` on a file with stored verdicts, how many match.
         best: the best force-closure grasps (indices count from the start of the whole stream, also
@@ -309,7 +314,8 @@ class PipelineSummary:
             d["best"] = {"index": self.best.index.tolist(), "quality": self.best.quality.tolist()}
         return d
 
-    def format(self) -> str:
+    def format(self, best: int = 1) -> str:
+        """The summary as aligned lines; ``best``: how many of the best grasps to list."""
         m = self.metadata
         lines = []
         what = m.get("object_name") or m.get("object") or m.get("source", "grasps")
@@ -337,7 +343,10 @@ class PipelineSummary:
             pct = "  ".join(f"p{p} {q:.3f}" for p, q in self.quality_percentiles.items())
             lines.append(f"Q (FC grasps)  {pct}  mean {self.quality_mean:.3f}  max {self.quality_max:.4f}")
         if self.best is not None and len(self.best):
-            lines.append(f"best grasp     #{int(self.best.index[0])}: Q {float(self.best.quality[0]):.4f}")
+            k = max(1, min(int(best), len(self.best)))
+            listed = ", ".join(f"#{int(i)} Q {float(q):.4f}" for i, q in
+                               zip(self.best.index[:k], self.best.quality[:k]))
+            lines.append(f"best grasp{'s' if k > 1 else ' '}    {listed}")
         if self.epsilon_positive is not None:
             origin = ", ".join(f"{0.0 if abs(v) < 1e-12 else v:.3g}" for v in m.get("epsilon_origin", ()))
             lines.append(
@@ -512,7 +521,7 @@ def score_stream(
                     if bar is not None:
                         bar.update(min(step, rows - s))
                 batch.update(epsilon=eps, volume=vol)
-                pos = eps > 0
+                pos = eps > EPSILON_ZERO
                 counts["eps_pos"] += int(pos.sum())
                 counts["eps_dis"] += int((pos != fc).sum())
                 eps_max = max(eps_max, float(eps.max()))
@@ -651,6 +660,7 @@ def run(
     first_contact: int | None = None,
     distributed: bool = False,
     object_spec: str | None = None,
+    object_holes=None,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
@@ -676,6 +686,8 @@ def run(
             :func:`initialize_distributed` first); see the module docstring.
         object_spec: how the object was named (built-in name or file), stored in the metadata
             so that ``grasp-jax show`` can load it again (default ``obj.name``).
+        object_holes: the CSV files of a polygon's holes (``grasp-jax sample --hole``), stored
+            in the metadata as ``object_holes`` with ``object_spec``.
 
     Returns:
         :class:`PipelineSummary`.
@@ -717,6 +729,8 @@ def run(
         torque_test=torque_test,
         first_contact=None if first_contact is None else int(first_contact),
     )
+    if object_holes:
+        meta["object_holes"] = [_object_spec(obj, h) for h in object_holes]
     if count > 1:
         meta.update(process_index=index, process_count=count, slice=[start, stop, num])
     kwargs = {} if first_contact is None else {"first_contact": first_contact}

@@ -704,6 +704,17 @@ def plot_central_axes_2d(points, normals, *, mu, samples=20000, seed=0, ax=None,
         label = f"reachable {100 * ok[upper].mean():.0f}%, " + label
     ax.scatter(t1, t2, s=0.6, color=_CONTACT, alpha=0.35, linewidths=0, rasterized=True, zorder=1)
     ax.plot([0, two_pi], [0, two_pi], color="k", lw=0.8)
+    # the legend goes into the empty lower-right triangle (theta1 > theta2 is never drawn)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Line2D([], [], ls="", marker="o", ms=3, color=_CONTACT, label="sampled central axis")]
+    if reachable:
+        handles += [Patch(facecolor="#eef1f5", edgecolor="#b0b0b0", lw=0.5, label="reachable cell"),
+                    Patch(facecolor=plt.get_cmap("Greys")(1 / 3), edgecolor="#b0b0b0", lw=0.5,
+                          label="no reachable line")]
+    ax.legend(handles=handles, loc="lower right", fontsize=7, frameon=False, handlelength=1.2,
+              borderaxespad=0.3)
     ax.set_xlim(0, two_pi)
     ax.set_ylim(0, two_pi)
     ax.set_aspect("equal")

@@ -66,7 +66,28 @@ def check_output_path(path, *, suffixes=SUFFIXES, what: str = "output file") -> 
         raise ValueError(f"the directory of {what} {str(path)!r} does not exist: {str(parent)!r}")
     if path.is_dir():
         raise ValueError(f"{what} {str(path)!r} is a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write {what} {str(path)!r}: its directory {str(parent)!r} is not writable")
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def publish_mode(fd: int) -> None:
+    """Give a temporary file made by :func:`tempfile.mkstemp` (mode 0600) the mode a plain
+    ``open(path, "w")`` would have (0666 less the umask), before it is renamed into place."""
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    except (OSError, AttributeError):  # no fchmod on this platform / filesystem
+        pass
+
+
+def _cannot_write(what: str, path: Path, exc: OSError) -> ValueError:
+    return ValueError(f"cannot write {what} {str(path)!r}: {exc.strerror or exc}")
 
 
 def _fsync_dir(directory: Path) -> None:
@@ -164,7 +185,11 @@ class ResultWriter:
         return False
 
     def _temp_file(self, suffix: str = ".tmp") -> tuple[int, Path]:
-        fd, name = tempfile.mkstemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=suffix)
+        try:
+            fd, name = tempfile.mkstemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=suffix)
+        except OSError as exc:
+            raise _cannot_write("output file", self.path, exc) from None
+        publish_mode(fd)
         return fd, Path(name)
 
     # subclass hooks
@@ -183,7 +208,11 @@ class NpzWriter(ResultWriter):
 
     def __init__(self, path, metadata, fields, fingers, dim):
         super().__init__(path, metadata, fields, fingers, dim)
-        self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=".tmp"))
+        try:
+            self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.",
+                                                  suffix=".tmp"))
+        except OSError as exc:
+            raise _cannot_write("output file", self.path, exc) from None
         self._files = {name: open(self._scratch / f"{name}.raw", "wb") for name in self.dtypes}
         self._archive: Path | None = None
 

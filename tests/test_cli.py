@@ -109,6 +109,29 @@ def test_show_draws_the_best_grasps(sampled, env):
     assert (d / "best.png").stat().st_size > 10_000
 
 
+def test_polygon_with_a_hole_round_trips(env, tmp_path):
+    """--hole cuts a hole in a CSV polygon; score and show find it again from the metadata."""
+    (tmp_path / "square.csv").write_text("0,0\n4,0\n4,4\n0,4\n")
+    (tmp_path / "hole.csv").write_text("1,1\n3,1\n3,3\n1,3\n")
+    grasp_jax("sample", "square.csv", "--hole", "hole.csv", "--fingers", "3", "--num", NUM, "--quiet",
+              "--out", "sq.npz", env=env, cwd=tmp_path)
+    a, meta = storage.read_results(tmp_path / "sq.npz")
+    assert meta["object_holes"] == [str(tmp_path / "hole.csv")]
+    # a quarter of the boundary length is the hole's: its contacts are inside the exterior
+    inner = np.all((a["points"] > 0.5) & (a["points"] < 3.5), axis=-1)
+    assert 0.15 < inner.mean() < 0.35
+    grasp_jax("show", "sq.npz", "--plot", "sq.png", env=env, cwd=tmp_path)
+    out = grasp_jax("score", "sq.npz", "--epsilon", "--json", env=env, cwd=tmp_path)
+    assert json.loads(out.stdout)["agree"] == 2000
+    # files are published with the usual permissions (0666 less the umask), not mkstemp's 0600
+    mask = os.umask(0o022)
+    os.umask(mask)
+    for name in ("sq.npz", "sq.png"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o666 & ~mask
+    out = grasp_jax("sample", "glass", "--hole", "hole.csv", env=env, cwd=tmp_path, check=False)
+    assert out.returncode == 2 and "only be cut from a polygon" in out.stderr
+
+
 def test_demo_and_help(env, tmp_path):
     out = grasp_jax("--num", "2000", env=env, cwd=tmp_path)  # no command: the demo
     assert "glass" in out.stdout and "force-closure" in out.stdout
@@ -137,6 +160,8 @@ MISTAKES = [
     (["show", "missing.parquet"], "missing.parquet"),
     (["frobnicate"], "frobnicate"),
     (["sample"], "OBJECT"),
+    (["sample", "."], "is a directory"),
+    (["sample", "shape.csv", "--hole", "missing.csv"], "missing.csv"),
 ]
 
 

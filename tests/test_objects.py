@@ -98,6 +98,20 @@ def test_load_errors(tmp_path):
         objects.load("teapot")
     with pytest.raises(ObjectError, match="neither a file"):
         objects.load(tmp_path / "missing.obj")
+    with pytest.raises(ObjectError, match="is a directory"):
+        objects.load(tmp_path)
+
+
+def test_load_polygon_with_hole_files(tmp_path):
+    (tmp_path / "square.csv").write_text("0,0\n2,0\n2,2\n0,2\n")
+    (tmp_path / "hole.csv").write_text("x,y\n0.5,0.5\n1.5,0.5\n1.5,1.5\n0.5,1.5\n")
+    poly = objects.load(tmp_path / "square.csv", holes=[tmp_path / "hole.csv"])
+    assert len(poly.rings) == 2 and np.isclose(poly.area, 3.0)
+    assert_outward_2d(poly)
+    with pytest.raises(ObjectError, match="only be cut from a polygon"):
+        objects.load("glass", holes=[tmp_path / "hole.csv"])
+    with pytest.raises(ObjectError, match="hole .*missing.csv.*not found"):
+        objects.load(tmp_path / "square.csv", holes=[tmp_path / "missing.csv"])
 
 
 # ----------------------------------------------------------------------------------- polygons

@@ -250,6 +250,9 @@ def test_run_matches_evaluate_and_summary(glass, reference_run):
     assert meta["grasp_jax_version"] == gj.__version__
     text = summary.format()
     assert "force-closure" in text and "grasps/s" in text and str(summary.output) in text
+    assert f"best grasp     #{int(summary.best.index[0])} Q " in text
+    listed = [line for line in summary.format(best=3).splitlines() if line.startswith("best grasps")]
+    assert len(listed) == 1 and listed[0].count(" Q ") == min(3, len(summary.best))
 
 
 def test_seeded_runs_repeat_and_seeds_differ(glass, reference_run, tmp_path):
@@ -319,7 +322,24 @@ def test_epsilon_baseline_on_a_polygon(tmp_path):
     np.testing.assert_array_equal(arrays["volume"], vol)
     # The baseline and Proposition 2 agree away from marginal grasps.
     assert summary.epsilon_disagree <= 3
-    assert summary.epsilon_positive == (eps > 0).sum()
+    assert summary.epsilon_positive == (eps > pipeline.EPSILON_ZERO).sum()
+    assert summary.epsilon_disagree == ((eps > pipeline.EPSILON_ZERO) != arrays["force_closure"]).sum()
+
+
+def test_epsilon_round_off_is_not_counted_as_force_closure(tmp_path, monkeypatch):
+    """On grasps exactly on the boundary of force-closure (contacts on parallel faces) qhull's
+    epsilon is round-off, about 1e-17 (seen on pyvista_nut.ply); the summary must not count it as
+    a force-closure verdict of the baseline that disagrees with Proposition 2."""
+    points = np.array([[[1.0, 0, 0], [-1.0, 0, 0]]] * 4)  # an antipodal pair: not force-closure
+    np.savez(tmp_path / "pair.npz", points=points, normals=points)
+
+    def round_off(points, normals, **kwargs):
+        return np.full(len(points), 1.4e-17), np.zeros(len(points))
+
+    monkeypatch.setattr(gj, "ferrari_canny", round_off)
+    summary = pipeline.score_file(tmp_path / "pair.npz", epsilon=True, origin=[0, 0, 0], torque_scale=1.0)
+    assert summary.force_closure == 0
+    assert summary.epsilon_positive == 0 and summary.epsilon_disagree == 0
 
 
 @pytest.mark.parametrize("devices", ["2"])

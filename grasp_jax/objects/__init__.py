@@ -42,22 +42,36 @@ _BUILTINS = {
 BUILTIN_NAMES: tuple[str, ...] = tuple(_BUILTINS)
 
 
-def load(spec) -> GraspObject:
+def load(spec, holes=()) -> GraspObject:
     """A built-in object by name (:data:`BUILTIN_NAMES`) or an object from a file: ``.csv`` ->
     :class:`Polygon` (x,y rows), anything else -> :class:`Mesh` (any format trimesh reads).
+
+    ``holes``: CSV files of x,y rows, one per hole of a polygon read from a ``.csv`` ``spec``.
 
     Raises:
         ObjectError: unknown name, missing or unreadable file, or unusable geometry.
     """
     text = str(spec)
+    holes = [Path(h).expanduser() for h in (holes or ())]
+    is_csv = Path(text).suffix.lower() == ".csv"
+    if holes and not is_csv:
+        raise ObjectError(f"{text!r}: holes can only be cut from a polygon read from a .csv file; "
+                          "give the polygon's exterior as a CSV of x,y rows.")
+    for hole in holes:
+        if hole.suffix.lower() != ".csv" or not hole.is_file():
+            what = "not found" if not hole.is_file() else "not a .csv file"
+            raise ObjectError(f"hole {str(hole)!r}: {what}; give a CSV file of x,y rows.")
     if text.lower() in _BUILTINS and not Path(text).is_file():
         return _BUILTINS[text.lower()]()
     path = Path(text).expanduser()
+    if path.is_dir():
+        raise ObjectError(f"{text!r} is a directory; give a mesh or CSV file in it or one of: "
+                          f"{', '.join(BUILTIN_NAMES)}.")
     if not path.is_file():
         raise ObjectError(f"{text!r} is neither a file nor a built-in object; give a mesh or CSV path "
                           f"or one of: {', '.join(BUILTIN_NAMES)}.")
-    if path.suffix.lower() == ".csv":
-        return Polygon.from_csv(path)
+    if is_csv:
+        return Polygon.from_csv(path, holes=holes)
     return Mesh.from_file(path)
 
 
