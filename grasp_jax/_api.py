@@ -4,6 +4,7 @@ the batch by ``_batch.map_grasps``."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import warnings
 from typing import Callable
 
@@ -12,8 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _closure
-from ._batch import map_grasps
-from ._constants import DEFAULT_NUM_EDGES
+from ._batch import Retry, map_grasps
+from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations
+from ._lp import Status
 from ._result import GraspEvaluation
 from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
 
@@ -76,14 +78,28 @@ def evaluate(
     if torque_test not in _TORQUE_TESTS:
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
     points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
-    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, iterations=iterations
-    )
-    result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress)
+    bind = functools.partial(_bind, _evaluate_single, num_edges=num_edges, torque_test=torque_test)
+    fn, retry = bind(iterations=iterations), None
+    if iterations is None:
+        # A fast pass with a short budget, then the full budget for the few it leaves unfinished.
+        fast = first_pass_iterations(_lp_columns(points.shape[-2], points.shape[-1], num_edges))
+        fn, retry = bind(iterations=fast), Retry(fn, _unfinished)
+    result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress, retry=retry)
     if points.dtype == np.float32 and not is_traced(points, normals, tangents, mu):
-        result = _resolve_in_float64(result, fn, points, normals, tangents, mu)
+        full = fn if retry is None else retry.fn
+        result = _resolve_in_float64(result, full, points, normals, tangents, mu)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
+
+
+def _lp_columns(n: int, d: int, num_edges: int) -> int:
+    """Columns of the largest LP of a grasp: the quality LP's ``n m + 1``."""
+    return n * (2 if d == 2 else num_edges) + 1
+
+
+def _unfinished(result: GraspEvaluation) -> jax.Array:
+    return (result.quality_status == Status.NOT_CONVERGED) | (result.torque_status == Status.NOT_CONVERGED)
 
 
 def _resolve_in_float64(result: GraspEvaluation, fn, points, normals, tangents, mu) -> GraspEvaluation:

@@ -12,6 +12,7 @@ Two paths:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Callable
 
@@ -59,14 +60,79 @@ def _blocked(fn: Callable, num_batched: int, size: int, block: int) -> Callable:
     return run
 
 
+@dataclasses.dataclass(frozen=True)
+class Retry:
+    """A second pass for the grasps a fast first pass leaves unfinished.
+
+    A vmapped interior-point loop runs until the *slowest* problem of its block has converged,
+    and a few problems in a hundred need twice the median iteration count: most of a block's
+    work would be spent on them. So the chunk is first scored by a function with a small
+    iteration budget; the grasps for which ``unfinished(out)`` holds are gathered, bad ones first,
+    into blocks of a fraction of the chunk and scored again by ``fn`` with the full budget, and
+    their results are scattered back. Everything happens inside the one compiled chunk function.
+
+    Attributes:
+        fn: the single-grasp function with the full budget.
+        unfinished: ``out -> (batch,) bool`` on the first pass's batched output.
+    """
+
+    fn: Callable
+    unfinished: Callable
+
+
+#: The second pass scores blocks of ``size / RETRY_FRACTION`` gathered grasps at a time.
+RETRY_FRACTION = 32
+
+
+def _with_retry(first: Callable, second: Callable, unfinished: Callable, size: int, cap: int) -> Callable:
+    """``first`` on ``size`` grasps, then ``second`` on the unfinished ones, ``cap`` at a time."""
+
+    def run(batched, shared):
+        out = first(batched, shared)
+        bad = unfinished(out)
+        count = jnp.sum(bad)
+        order = jnp.argsort(~bad, stable=True)  # unfinished grasps first
+        rounds = (count + cap - 1) // cap
+
+        def redo(r, out):
+            idx = jax.lax.dynamic_slice(order, (r * cap,), (cap,))
+            valid = r * cap + jnp.arange(cap) < count
+            res = second(jax.tree_util.tree_map(lambda a: a[idx], batched), shared)
+
+            def put(old, new):
+                mask = valid.reshape((cap,) + (1,) * (new.ndim - 1))
+                return old.at[idx].set(jnp.where(mask, new, old[idx]))
+
+            return jax.tree_util.tree_map(put, out, res)
+
+        return jax.lax.fori_loop(0, rounds, redo, out)
+
+    return run
+
+
+def _local(fn: Callable, num_batched: int, size: int, block: int, retry: Retry | None) -> Callable:
+    """The scorer of ``size`` grasps on one device."""
+    if retry is None:
+        return _blocked(fn, num_batched, size, block)
+    cap = max(block, (size // RETRY_FRACTION) // block * block)
+    cap = min(cap, size)
+    return _with_retry(
+        _blocked(fn, num_batched, size, block),
+        _blocked(retry.fn, num_batched, cap, block),
+        retry.unfinished,
+        size,
+        cap,
+    )
+
+
 @functools.lru_cache(maxsize=None)
-def _compiled(fn: Callable, num_batched: int, size: int, block: int, devices: tuple) -> Callable:
+def _compiled(fn: Callable, num_batched: int, size: int, block: int, devices: tuple, retry: Retry | None) -> Callable:
     """Compiled scorer of ``size`` grasps, sharded over ``devices`` when there are several."""
     if len(devices) <= 1:
-        return jax.jit(_blocked(fn, num_batched, size, block))
+        return jax.jit(_local(fn, num_batched, size, block, retry))
     P = jax.sharding.PartitionSpec
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    local = _blocked(fn, num_batched, size // len(devices), block)
+    local = _local(fn, num_batched, size // len(devices), block, retry)
     sharded = jax.shard_map(
         local, mesh=mesh, in_specs=(P("batch"), P()), out_specs=P("batch"), check_vma=False
     )
@@ -82,6 +148,7 @@ def map_grasps(
     chunk: int | None = None,
     progress: bool = False,
     devices: tuple | None = None,
+    retry: Retry | None = None,
 ):
     """Apply a single-grasp function to every grasp of a batch.
 
@@ -97,11 +164,20 @@ def map_grasps(
         progress: show a progress bar over chunks (tqdm).
         devices: devices to shard each chunk over (default: all local devices of the default
             backend).
+        retry: on the concrete path, ``fn`` is a fast first pass and ``retry`` scores again the
+            grasps it leaves unfinished (see :class:`Retry`). The traced path calls ``retry.fn``
+            alone: under the caller's transformations there is no chunk to compact.
 
     Returns:
         ``fn``'s pytree with ``batch_shape`` prepended to every leaf.
     """
     present = [a for a in batched if a is not None]
+    traced = is_traced(*present, *jax.tree_util.tree_leaves(shared))
+    if retry is not None and traced:
+        fn, retry = retry.fn, None
+    if retry is not None:
+        missing = tuple(a is None for a in batched)
+        retry = Retry(_with_optional(retry.fn, missing), retry.unfinished)
     total = int(np.prod(batch_shape, dtype=np.int64))
     flat = tuple(
         None if a is None else a.reshape((total,) + a.shape[len(batch_shape):]) for a in batched
@@ -112,7 +188,7 @@ def map_grasps(
     def unflatten(tree):
         return jax.tree_util.tree_map(lambda a: a.reshape(batch_shape + a.shape[1:]), tree)
 
-    if is_traced(*present, *jax.tree_util.tree_leaves(shared)) or total == 0:
+    if traced or total == 0:
         in_axes = (0,) * len(flat) + (None,)
         if total == 0:
             out = jax.eval_shape(lambda *xs: jax.vmap(call, in_axes=in_axes)(*xs), *flat, shared)
@@ -124,7 +200,7 @@ def map_grasps(
     ndev = len(devices)
     block, chunk = _sizes(devices, chunk)
     size = _bucket(-(-total // ndev), max(chunk // ndev, BLOCK), min(BLOCK, block)) * ndev
-    run = _compiled(call, len(flat), size, block, tuple(devices) if ndev > 1 else ())
+    run = _compiled(call, len(flat), size, block, tuple(devices) if ndev > 1 else (), retry)
     starts = range(0, total, size)
     if progress:
         from tqdm.auto import tqdm

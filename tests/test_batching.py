@@ -150,3 +150,31 @@ def test_zero_size_batch():
     assert gj.force_closure(p, n, mu=MU).shape == shape
     p2 = np.zeros((0, 3, 2))
     assert gj.evaluate(p2, p2 + 1, mu=MU).certificate.shape == (0, 3)
+
+
+def test_fast_pass_and_retry_equal_one_full_pass():
+    """The concrete path scores a chunk with a short iteration budget and re-solves, gathered,
+    the grasps it leaves unfinished (``_batch.Retry``): the results are exactly those of one pass
+    with the full budget, and some grasps did need the second pass."""
+    p, n = _batch_of(3000, seed=11)
+    fast = gj.evaluate(p, n, mu=MU)
+    full = gj.evaluate(p, n, mu=MU, iterations=30)
+    _assert_same(fast, full, exact=False)  # the two passes compile apart: last-bit differences
+    first = api.first_pass_iterations(api._lp_columns(N, D, 8))
+    assert np.any(np.asarray(fast.iterations) > first)
+    assert np.all(fast.converged)
+
+
+def test_retry_gathers_in_several_rounds():
+    """More unfinished grasps than one gathered block holds: the second pass loops over rounds."""
+
+    def fast(x, shared):
+        return jnp.where(x[0] > 0.5, -1.0, x[0] * shared)  # "unfinished" where x > 0.5
+
+    def slow(x, shared):
+        return x[0] * shared
+
+    x = np.random.default_rng(0).uniform(size=(5000, 1))
+    retry = _batch.Retry(slow, lambda out: out < 0)
+    out = _batch.map_grasps(fast, (x,), 2.0, (5000,), chunk=4096, retry=retry)
+    np.testing.assert_array_equal(np.asarray(out), 2.0 * x[:, 0])
