@@ -48,13 +48,22 @@ def _bucket(n: int, chunk: int, smallest: int = 256) -> int:
 
 
 def _blocked(fn: Callable, num_batched: int, size: int, block: int) -> Callable:
-    """``lax.map`` over blocks of ``block`` grasps of ``vmap(fn)``, for ``size`` grasps."""
+    """``lax.map`` over blocks of ``block`` grasps of ``vmap(fn)``, for ``size`` grasps of which
+    the first ``count`` are real: blocks of padding only are skipped (zeros come out)."""
     block = min(block, size)
     in_axes = (0,) * num_batched + (None,)
 
-    def run(batched, shared):
+    def run(batched, shared, count):
         blocks = jax.tree_util.tree_map(lambda a: a.reshape((size // block, block) + a.shape[1:]), batched)
-        out = jax.lax.map(lambda xs: jax.vmap(fn, in_axes=in_axes)(*xs, shared), blocks)
+        scored = lambda xs: jax.vmap(fn, in_axes=in_axes)(*xs, shared)  # noqa: E731
+        shapes = jax.eval_shape(scored, jax.tree_util.tree_map(lambda a: a[0], blocks))
+
+        def one_block(args):
+            k, xs = args
+            skip = lambda xs: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)  # noqa: E731
+            return jax.lax.cond(k * block < count, scored, skip, xs)
+
+        out = jax.lax.map(one_block, (jnp.arange(size // block), blocks))
         return jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[2:]), out)
 
     return run
@@ -87,9 +96,9 @@ RETRY_FRACTION = 32
 def _with_retry(first: Callable, second: Callable, unfinished: Callable, size: int, cap: int) -> Callable:
     """``first`` on ``size`` grasps, then ``second`` on the unfinished ones, ``cap`` at a time."""
 
-    def run(batched, shared):
-        out = first(batched, shared)
-        bad = unfinished(out)
+    def run(batched, shared, count):
+        out = first(batched, shared, count)
+        bad = unfinished(out) & (jnp.arange(size) < count)
         count = jnp.sum(bad)
         order = jnp.argsort(~bad, stable=True)  # unfinished grasps first
         rounds = (count + cap - 1) // cap
@@ -97,7 +106,7 @@ def _with_retry(first: Callable, second: Callable, unfinished: Callable, size: i
         def redo(r, out):
             idx = jax.lax.dynamic_slice(order, (r * cap,), (cap,))
             valid = r * cap + jnp.arange(cap) < count
-            res = second(jax.tree_util.tree_map(lambda a: a[idx], batched), shared)
+            res = second(jax.tree_util.tree_map(lambda a: a[idx], batched), shared, cap)
 
             def put(old, new):
                 mask = valid.reshape((cap,) + (1,) * (new.ndim - 1))
@@ -134,9 +143,31 @@ def _compiled(fn: Callable, num_batched: int, size: int, block: int, devices: tu
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     local = _local(fn, num_batched, size // len(devices), block, retry)
     sharded = jax.shard_map(
-        local, mesh=mesh, in_specs=(P("batch"), P()), out_specs=P("batch"), check_vma=False
+        lambda batched, shared, counts: local(batched, shared, counts[0]),
+        mesh=mesh, in_specs=(P("batch"), P(), P("batch")), out_specs=P("batch"), check_vma=False,
     )
     return jax.jit(sharded)
+
+
+def _layout(start: int, stop: int, size: int, ndev: int) -> tuple[np.ndarray | None, np.ndarray]:
+    """Where grasps ``start..stop`` go in a chunk of ``size`` slots on ``ndev`` devices.
+
+    A partial chunk is spread evenly over the devices, each device's real grasps first and
+    padding after them (its blocks of padding are skipped). Returns ``(source, counts)``: the
+    grasp index of each slot (``None`` for a full chunk, taken as it is) and the number of real
+    grasps on each device.
+    """
+    local = size // ndev
+    real = stop - start
+    if real == size:
+        return None, np.full(ndev, local, np.int32)
+    per = -(-real // ndev)
+    slot = np.arange(size)
+    device, offset = divmod(slot, local)
+    source = start + device * per + offset
+    valid = (offset < per) & (source < stop)
+    counts = valid.reshape(ndev, local).sum(axis=1).astype(np.int32)
+    return np.where(valid, source, start), counts
 
 
 def map_grasps(
@@ -209,15 +240,16 @@ def map_grasps(
     outs = []
     for start in starts:
         stop = min(start + size, total)
-        pieces = []
-        for a in flat:
-            piece = a[start:stop]
-            if stop - start < size:
-                pad = np.broadcast_to(np.asarray(piece[:1]), (size - (stop - start),) + piece.shape[1:])
-                piece = np.concatenate([np.asarray(piece), pad])
-            pieces.append(piece)
-        res = run(tuple(pieces), shared)
-        outs.append(jax.tree_util.tree_map(lambda a, k=stop - start: a[:k], res))
+        source, counts = _layout(start, stop, size, ndev)
+        if source is None:
+            pieces = tuple(a[start:stop] for a in flat)
+        else:
+            pieces = tuple(a[source] for a in flat)
+        res = run(pieces, shared, counts if ndev > 1 else counts[0])
+        if source is not None:
+            keep = np.flatnonzero(np.arange(size) % (size // ndev) < np.repeat(counts, size // ndev))
+            res = jax.tree_util.tree_map(lambda a, keep=keep: a[keep], res)
+        outs.append(res)
     if len(outs) == 1:
         return unflatten(outs[0])
     return unflatten(jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *outs))
