@@ -245,14 +245,16 @@ def map_grasps(
             pieces = tuple(a[start:stop] for a in flat)
         else:
             pieces = tuple(a[source] for a in flat)
-        res = run(pieces, shared, counts if ndev > 1 else counts[0])
+        # To the host at once: indexing or concatenating arrays sharded over several CPU devices
+        # would run small cross-device programs between the chunks, whose collectives can wait
+        # on a thread pool that the chunks occupy (seen: a 40 s rendezvous timeout, then abort).
+        res = jax.device_get(run(pieces, shared, counts if ndev > 1 else counts[0]))
         if source is not None:
             keep = np.flatnonzero(np.arange(size) % (size // ndev) < np.repeat(counts, size // ndev))
             res = jax.tree_util.tree_map(lambda a, keep=keep: a[keep], res)
         outs.append(res)
-    if len(outs) == 1:
-        return unflatten(outs[0])
-    return unflatten(jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *outs))
+    out = outs[0] if len(outs) == 1 else jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *outs)
+    return unflatten(jax.tree_util.tree_map(jnp.asarray, out))
 
 
 @functools.lru_cache(maxsize=None)
