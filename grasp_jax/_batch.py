@@ -99,14 +99,15 @@ def _with_retry(first: Callable, second: Callable, unfinished: Callable, size: i
     def run(batched, shared, count):
         out = first(batched, shared, count)
         bad = unfinished(out) & (jnp.arange(size) < count)
-        count = jnp.sum(bad)
+        num_bad = jnp.sum(bad)
         order = jnp.argsort(~bad, stable=True)  # unfinished grasps first
-        rounds = (count + cap - 1) // cap
+        rounds = (num_bad + cap - 1) // cap
 
         def redo(r, out):
             idx = jax.lax.dynamic_slice(order, (r * cap,), (cap,))
-            valid = r * cap + jnp.arange(cap) < count
-            res = second(jax.tree_util.tree_map(lambda a: a[idx], batched), shared, cap)
+            valid = r * cap + jnp.arange(cap) < num_bad
+            sub = jax.tree_util.tree_map(lambda a: a[idx], batched)
+            res = second(sub, shared, jnp.minimum(cap, num_bad - r * cap))
 
             def put(old, new):
                 mask = valid.reshape((cap,) + (1,) * (new.ndim - 1))
