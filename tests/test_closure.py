@@ -394,3 +394,21 @@ def test_ill_posed_quality_lp_converges():
     assert not ev.force_closure and ev.quality == 0.0
     assert reference.quality_highs(p, n, MU) == (0.0, False)
     assert reference.min_weight_highs(p, n, MU) < -1e-3
+
+
+def test_breakdown_near_the_optimum_is_optimal():
+    """A 4-finger, 25-edge grasp whose factorization breaks down (non-finite direction) with its
+    residuals at 5e-9, just above the tolerance: the frozen iterate is optimal to HiGHS's value.
+    It used to end NOT_CONVERGED."""
+    p = np.array([[0.32821949271761786, -0.6303936274909832, -0.14253022785885136],
+                  [0.47814720407880257, -0.6147920908479223, -0.0015249848336177639],
+                  [-0.6551941483090504, -0.06741248399069681, -0.37464858686397323],
+                  [0.3222894284565041, -0.3518155846821066, -0.4011013290497455]])
+    n = np.array([[0.22714867339637165, -0.8903516526083171, -0.39455977350954985],
+                  [0.3561052933420155, -0.934434792398047, -0.004542995687395705],
+                  [-0.39918285933273, -0.0838197043830236, -0.913031928232572],
+                  [0.18034858494518097, -0.40177755601920445, -0.8978024189026813]])
+    ev = gj.evaluate(p, n, mu=MU, num_edges=25)
+    assert ev.quality_status == gj.Status.OPTIMAL
+    assert ev.delta == pytest.approx(-0.9184528415710564, abs=1e-7)  # HiGHS, the normalized LP
+    assert reference.quality_highs(p, n, MU, 25) == (0.0, False)
