@@ -82,6 +82,10 @@ class _State(NamedTuple):
     kappa: jax.Array
     done: jax.Array
     iterations: jax.Array
+    # The iterate with the smallest residual so far, scaled by tau (see ``_finish``).
+    best_x: jax.Array
+    best_y: jax.Array
+    best_residual: jax.Array
 
 
 def _cholesky(M: jax.Array, pivot_tol: float, huge: float) -> list[list[jax.Array]]:
@@ -140,6 +144,9 @@ def _init(lp: LP) -> _State:
         kappa=jnp.ones((), dt),
         done=jnp.zeros((), bool),
         iterations=jnp.zeros((), jnp.int32),
+        best_x=jnp.zeros(cols, dt),
+        best_y=jnp.zeros(rows, dt),
+        best_residual=jnp.full((), jnp.inf, dt),
     )
 
 
@@ -214,7 +221,11 @@ def _step(lp: LP, st: _State) -> _State:
     n = x.shape[0]
 
     rp, rd, aty = _residuals(lp, st)
-    optimal, infeasible, _ = _measures(lp, st, rp, rd, aty)
+    optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
+    better = residual < st.best_residual
+    best_x = jnp.where(better, x / tau, st.best_x)
+    best_y = jnp.where(better, y / tau, st.best_y)
+    best_residual = jnp.where(better, residual, st.best_residual)
     rg = kappa + c @ x - b @ y
     mu = (x @ s + tau * kappa) / (n + 1)
 
@@ -266,6 +277,9 @@ def _step(lp: LP, st: _State) -> _State:
         kappa=kappa + alpha * dkappa,
         done=st.done,
         iterations=st.iterations + 1,
+        best_x=best_x,
+        best_y=best_y,
+        best_residual=best_residual,
     )
     # Keep every quantity finite and positive even on a wild step; a frozen problem stays put.
     # The fraction-to-boundary rule keeps the iterate positive; only a non-finite direction
@@ -277,22 +291,27 @@ def _step(lp: LP, st: _State) -> _State:
     return new._replace(done=done | ~ok, iterations=jnp.where(done, st.iterations, st.iterations + 1))
 
 
-def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array) -> LPSolution:
+def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, accept_near: bool) -> LPSolution:
     A, b, c = lp
     rp, rd, aty = _residuals(lp, st)
     optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
-    # A problem that ends unfinished, at the iteration budget or frozen by a breakdown of the
-    # factorization (non-finite direction; seen near the end on ill-conditioned problems), is
-    # still optimal when its residuals are within 100x the tolerance.
-    near = ~infeasible & (residual <= 100.0 * tolerances(A.dtype).lp)
-    optimal = (optimal | near) & ~inconsistent
+    optimal = optimal & ~inconsistent
     infeasible = infeasible | inconsistent
+    x_opt, y_opt = st.x / st.tau, st.y / st.tau
+    if accept_near:
+        # Near the optimum of an ill-conditioned problem the iterates can wander instead of
+        # meeting the tolerance (seen: a residual of 2e-9 at iteration 14, 5e-2 at 40). After the
+        # full budget, the best iterate counts as optimal when within 100x the tolerance.
+        near = ~optimal & ~infeasible & (st.best_residual <= 100.0 * tolerances(A.dtype).lp)
+        x_opt = jnp.where(near, st.best_x, x_opt)
+        y_opt = jnp.where(near, st.best_y, y_opt)
+        residual = jnp.where(near, st.best_residual, residual)
+        optimal = optimal | near
     status = jnp.where(
         optimal, Status.OPTIMAL, jnp.where(infeasible, Status.INFEASIBLE, Status.NOT_CONVERGED)
     ).astype(jnp.int8)
-    x = jnp.where(optimal, st.x / st.tau, 0.0)
+    x = jnp.where(optimal, x_opt, 0.0)
     by = b @ st.y
-    y_opt = st.y / st.tau
     y_inf = st.y / jnp.where(by > 0, by, 1.0)
     y = jnp.where(optimal, y_opt, jnp.where(inconsistent, y_null, jnp.where(infeasible, y_inf, 0.0)))
     value = jnp.where(optimal, c @ x, 0.0)
@@ -311,6 +330,8 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
         *lps: problems in standard form; each may have its own shape. Each is *one* problem:
             batch with ``jax.vmap``.
         iterations: interior-point iterations; default from the largest problem's column count.
+            With at least the default, a problem that ends unfinished but whose best iterate is
+            within 100x the tolerance is reported optimal at that iterate.
         consistent: the caller knows that ``A x = b`` has a solution (for example a feasible
             point by construction); skips the up-front test for a rank-deficient, inconsistent
             system (:func:`_inconsistency`), which costs about one iteration.
@@ -324,8 +345,9 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
                 f"solve() takes one LP with A: (rows, cols), b: (rows,), c: (cols,); got shapes "
                 f"{lp.A.shape}, {lp.b.shape}, {lp.c.shape}. Batch with jax.vmap."
             )
+    full = default_iterations(max(lp.A.shape[1] for lp in lps))
     if iterations is None:
-        iterations = default_iterations(max(lp.A.shape[1] for lp in lps))
+        iterations = full
     if consistent:
         checks = tuple((jnp.zeros((), bool), jnp.zeros_like(lp.b)) for lp in lps)
     else:
@@ -342,7 +364,9 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
         return (k < iterations) & ~jnp.all(jnp.stack([st.done for st in sts]))
 
     _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
-    return tuple(_finish(lp, st, *check) for lp, st, check in zip(lps, states, checks))
+    # A short budget (the first pass of ``_batch.Retry``) reports unfinished problems as such.
+    accept_near = iterations >= full
+    return tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
 
 
 def optimal_value(lp: LP, solution: LPSolution) -> jax.Array:
