@@ -69,9 +69,9 @@ def evaluate(
         torque_test: ``"exact"`` (positive-spanning LP, the default) or ``"paper"`` (eq. 15 / 21,
             only necessary in 3D; see ``MATH.md``).
         tangents: optional ``(..., n, 3)`` first tangent direction of each contact frame.
-        iterations: interior-point iterations. Default: a first pass of 12 (16 above 64 LP
-            columns), then the grasps it leaves unfinished again with 30 (40); an explicit
-            number is one pass with that budget.
+        iterations: interior-point iterations. Default: a first pass of 10 to 16 (by LP size,
+            ``_constants.first_pass_iterations``), then the grasps it leaves unfinished again
+            with 30 (40 above 64 LP columns); an explicit number is one pass with that budget.
         progress: show a progress bar (concrete inputs only).
 
     Returns:
