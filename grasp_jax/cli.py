@@ -271,18 +271,9 @@ def _warn(text: str) -> None:
 
 
 def _check_plot_path(path: Path | None) -> Path | None:
-    if path is None:
-        return None
-    if path.suffix.lower() not in PLOT_SUFFIXES:
-        raise ValueError(f"figure {str(path)!r} must end in {', '.join(PLOT_SUFFIXES)}")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ValueError(f"the directory of figure {str(path)!r} does not exist: {str(parent)!r}")
-    if path.is_dir():
-        raise ValueError(f"figure {str(path)!r} is a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write figure {str(path)!r}: its directory {str(parent)!r} is not writable")
-    return path
+    from . import storage
+
+    return None if path is None else storage.check_output_path(path, suffixes=PLOT_SUFFIXES, what="figure")
 
 
 def _enable_compilation_cache() -> None:
@@ -339,8 +330,6 @@ def _holes(args, meta) -> list:
 
 def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | None = None) -> Path:
     """Draw the grasps of a :class:`grasp_jax.pipeline.BestGrasps` on ``obj`` in one figure (atomic)."""
-    import tempfile
-
     import numpy as np
 
     from . import plotting, storage
@@ -369,12 +358,7 @@ def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | 
         if title:
             fig.suptitle(title, fontsize=11)
         fig.tight_layout()
-        directory = path.parent if str(path.parent) else Path(".")
-        try:
-            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-        except OSError as exc:
-            raise ValueError(f"cannot write figure {str(path)!r}: {exc.strerror or exc}") from None
-        storage.publish_mode(fd)
+        fd, tmp = storage.temp_file(path, what="figure")
         try:
             with os.fdopen(fd, "wb") as f:
                 fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")

@@ -90,6 +90,18 @@ def _cannot_write(what: str, path: Path, exc: OSError) -> ValueError:
     return ValueError(f"cannot write {what} {str(path)!r}: {exc.strerror or exc}")
 
 
+def temp_file(path: Path, *, suffix: str = ".tmp", what: str = "output file") -> tuple[int, Path]:
+    """A hidden temporary file beside ``path``, with the mode a plain ``open`` would give, to be
+    renamed onto ``path`` once complete (atomic publication). A failure is one ``ValueError``."""
+    directory = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, name = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=suffix)
+    except OSError as exc:
+        raise _cannot_write(what, path, exc) from None
+    publish_mode(fd)
+    return fd, Path(name)
+
+
 def _fsync_dir(directory: Path) -> None:
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -185,12 +197,7 @@ class ResultWriter:
         return False
 
     def _temp_file(self, suffix: str = ".tmp") -> tuple[int, Path]:
-        try:
-            fd, name = tempfile.mkstemp(dir=self.directory, prefix=f".{self.path.name}.", suffix=suffix)
-        except OSError as exc:
-            raise _cannot_write("output file", self.path, exc) from None
-        publish_mode(fd)
-        return fd, Path(name)
+        return temp_file(self.path, suffix=suffix)
 
     # subclass hooks
     def _write(self, arrays: dict) -> None:

@@ -314,11 +314,13 @@ def test_public_wrappers_match_evaluate(cases):
     """gj.force_closure / gj.min_weight (concrete, chunked path) agree with the results computed
     under jit (and emit no warning: pytest turns warnings into errors). gj.quality: see
     test_autodiff and test_batching."""
-    c = cases((2, 2, 8))  # single-face grasps included: no "did not converge" warning
-    assert c.single_face.any()
-    fc = np.asarray(gj.force_closure(c.points, c.normals, mu=MU))
-    np.testing.assert_array_equal(fc, c.ev.force_closure)
-    np.testing.assert_allclose(np.asarray(gj.min_weight(c.points, c.normals, mu=MU)), c.margin, atol=1e-12)
+    assert cases((2, 2, 8)).single_face.any()  # included: no "did not converge" warning
+    for key in ((2, 2, 8), (2, 3, 8)):
+        c = cases(key)
+        fc = np.asarray(gj.force_closure(c.points, c.normals, mu=MU))
+        np.testing.assert_array_equal(fc, c.ev.force_closure)
+        margin = np.asarray(gj.min_weight(c.points, c.normals, mu=MU))
+        np.testing.assert_allclose(margin, c.margin, atol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------------
