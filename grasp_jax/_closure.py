@@ -287,18 +287,28 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
 
 
 def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
-    """``(l*, status, certificate)`` of the classical min-weight LP on all primitive wrenches.
-
-    ``l*`` is 0 when the wrenches are rank deficient and ``-inf`` when the LP is infeasible.
-    """
+    """``(l*, status)`` of the classical min-weight LP on all primitive wrenches of one grasp,
+    differentiable in ``points`` and ``normals`` (see :func:`min_weight_value`)."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
     w = primitive_wrenches(points, edges, origin)
     d = points.shape[-1]
     w = w.at[..., d:].divide(torque_scale)
-    w = w.reshape(-1, w.shape[-1])
-    (sol,) = solve(min_weight_lp(w), iterations=iterations)
-    full, _ = _gram_rank(w)
-    margin = _min_weight_margin(w, sol)
-    margin = jnp.where(full, margin, 0.0)
-    return margin, sol.status
+    return min_weight_value(w.reshape(-1, w.shape[-1]), iterations)
+
+
+def min_weight_value(vectors: jax.Array, iterations=None) -> tuple[jax.Array, jax.Array]:
+    """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
+
+    ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
+    derivatives come from the envelope theorem on the LP's primal-dual pair (no iteration is
+    differentiated), finite everywhere, zero where the value is a constant (0 or ``-inf``).
+    """
+    lp = min_weight_lp(vectors)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations)
+    rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
+    full, _ = rank(jax.lax.stop_gradient(vectors))
+    K = vectors.shape[0]
+    value = 1.0 / K - optimal_value(lp, sol)
+    margin = jnp.where(sol.status == Status.OPTIMAL, value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))
+    return jnp.where(full, margin, 0.0), sol.status

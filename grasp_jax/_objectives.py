@@ -1,0 +1,164 @@
+"""Objectives a contact optimizer maximizes, for **one** grasp, beside the metrics of ``_closure``.
+
+Q is 0 on the whole region where a grasp is not in equilibrium (a plateau without gradient), and
+the signed optimum ``delta*`` of the quality LP sees only condition (1) of Proposition 2: starts
+drift to grasps in equilibrium whose torques about ``c_1`` do not span. The objectives here are
+continuous, finite, differentiable almost everywhere (envelope theorem on each LP's primal-dual
+solution; no iteration is differentiated), and see both conditions:
+
+``"closure"`` (the default)
+    ``min(delta*, TORQUE_WEIGHT * T)``, with ``delta*`` the signed quality LP optimum (``Q`` where
+    positive) and ``T`` the torque margin about ``c_1``: ``K l*`` of the min-weight LP on the
+    ``K = (n - 1) m`` torques ``tau_ij`` in 3D (``l* > 0`` iff they positively span R^3; 0 when
+    rank deficient), the smaller of the largest positive and negative torque over the grasp size
+    in 2D. Positive exactly when the grasp is force-closure (Proposition 2, exact form), and equal
+    to ``Q`` wherever ``TORQUE_WEIGHT * T >= Q`` (most force-closure grasps; a continuous objective
+    cannot equal ``Q`` everywhere on force-closure grasps, because ``Q`` stays positive where the
+    torque condition fails).
+``"closure_any"``
+    The smallest ``"closure"`` over the choice of ``c_1`` (each contact in turn): does not depend
+    on the order of the contacts; the smallest Q over the choice of reference contact where the
+    torque terms do not bind. ``n`` times the LPs.
+``"min_weight"``
+    ``K l*`` of the classical min-weight LP on all ``K = n m`` primitive wrenches (torques about
+    the object's centre, divided by its radius): positive iff force-closure, independent of
+    ``c_1``; the margin FRoGGeR (Li et al. 2023) optimizes.
+``"signed_q"``
+    ``delta*`` alone (equilibrium only; kept to show why it is not enough).
+``"dfc"``, ``"dfc_eig"``
+    The energies of DexGraspNet / DFC (Liu et al. 2021), negated so that larger is better:
+    ``-||sum_i [n_i; p_i x n_i]||^2`` (unit normal forces, no friction), points about the object's
+    centre over its radius; ``"dfc_eig"`` adds ``sum relu(0.01 - eig(G G^T))^2``, ``G`` the
+    ``(d + t, n d)`` grasp matrix. Neither is zero or positive exactly at force-closure: they are
+    baselines, scored afterwards by the exact test.
+
+All take ``points, normals: (n, d)`` and return a scalar, plus a small dict of monitors.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from ._closure import (
+    SHIFT,
+    _exact_torque_2d,
+    _torques_about_first,
+    min_weight_value,
+    quality_lp,
+)
+from ._cones import cone_edges, safe_normalize
+from ._constants import tolerances
+from ._lp import Status, optimal_value, solve
+from ._wrench import cross, primitive_wrenches
+
+#: Objectives :func:`objective_one` knows, in the order of the module docstring.
+OBJECTIVES: tuple[str, ...] = ("closure", "closure_any", "min_weight", "signed_q", "dfc", "dfc_eig")
+
+#: Weight of the torque margin in ``"closure"``. ``T`` lies in ``(-inf, 1]`` (3D) and Q in
+#: ``[0, sqrt(1 + mu^2)]``; with 4 the torque term binds on few optimized grasps (it is reported
+#: per grasp as ``torque_bound``).
+TORQUE_WEIGHT = 4.0
+
+#: Value given to an LP that has no optimum (a rank-deficient, infeasible min-weight LP): finite,
+#: below every value a feasible grasp reaches.
+FLOOR = -10.0
+
+#: DFC's eigenvalue threshold (``epsilon`` of ``relu(-eig(G G^T - epsilon I))``).
+DFC_EPSILON = 0.01
+
+
+def signed_quality(points, edges, iterations=None) -> jax.Array:
+    """``delta*`` of the always-feasible quality LP (``Q`` where positive), envelope derivatives.
+
+    Args:
+        points: ``(n, d)``; edges: ``(n, m, d)`` cone edges (:func:`cone_edges`)."""
+    lp = quality_lp(points, edges)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True)
+    return jnp.where(sol.status == Status.OPTIMAL, -optimal_value(lp, sol) - SHIFT, 0.0)
+
+
+def torque_margin(points, edges, iterations=None) -> jax.Array:
+    """``T`` of the module docstring: > 0 iff the torques of contacts 2..n about ``c_1``
+    positively span R^3 (R in 2D). Arguments as :func:`signed_quality`."""
+    n, m, d = edges.shape
+    tau = _torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1)
+    if d == 2:
+        return _exact_torque_2d(tau)[1]
+    margin, status = min_weight_value(tau, iterations)
+    return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
+
+
+def _closure(points, normals, mu, num_edges, iterations):
+    edges = cone_edges(safe_normalize(normals), mu, num_edges)
+    delta = signed_quality(points, edges, iterations)
+    torque = TORQUE_WEIGHT * torque_margin(points, edges, iterations)
+    return jnp.minimum(delta, torque), delta, torque
+
+
+def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None) -> jax.Array:
+    """``K l*`` of the min-weight LP on all ``K`` primitive wrenches, torques about ``center`` over
+    ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible."""
+    edges = cone_edges(safe_normalize(normals), mu, num_edges)
+    w = primitive_wrenches((points - center) / scale, edges)
+    w = w.reshape(-1, w.shape[-1])
+    margin, status = min_weight_value(w, iterations)
+    return jnp.where(status == Status.INFEASIBLE, FLOOR, w.shape[0] * margin)
+
+
+def dfc_energy(points, normals, center, scale, eig: bool) -> jax.Array:
+    """DexGraspNet's ``||sum_i [n_i; p_i x n_i]||^2``, plus DFC's eigenvalue term if ``eig``."""
+    n, d = points.shape
+    arm = (points - center) / scale
+    unit = safe_normalize(normals)
+    torque = cross(arm, unit)
+    torque = torque[:, None] if d == 2 else torque
+    energy = jnp.sum(jnp.sum(jnp.concatenate([unit, torque], axis=-1), axis=0) ** 2)
+    if not eig:
+        return energy
+    # G: (d + t, n d), the columns of contact i are [I; [p_i]_x] (force directions e_k).
+    basis = jnp.eye(d, dtype=points.dtype)
+    cols = jax.vmap(lambda p: jax.vmap(lambda e: jnp.concatenate([e, jnp.atleast_1d(cross(p, e))]))(basis))(arm)
+    G = cols.reshape(n * d, -1).T
+    evals = jnp.linalg.eigvalsh(G @ G.T)
+    return energy + jnp.sum(jax.nn.relu(DFC_EPSILON - evals) ** 2)
+
+
+def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None):
+    """``(value, monitors)`` of objective ``kind`` for one grasp (larger is better).
+
+    Args:
+        points, normals: ``(n, d)``; normals outward.
+        mu: friction coefficient; num_edges: edges per 3D cone.
+        kind: one of :data:`OBJECTIVES`.
+        center: ``(d,)`` the object's centre; scale: its radius (``"min_weight"`` and the DFC
+            energies take torques about ``center`` in units of ``scale``).
+        iterations: interior-point iterations (default from the LP size).
+
+    Returns:
+        ``value: ()`` and ``monitors``: ``{"delta": delta*, "torque": weighted T}`` for the closure
+        objectives (about the reported ``c_1``), empty otherwise.
+    """
+    if kind == "closure":
+        value, delta, torque = _closure(points, normals, mu, num_edges, iterations)
+        return value, {"delta": delta, "torque": torque}
+    if kind == "closure_any":
+        n = points.shape[0]
+        rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
+        values, deltas, torques = jax.vmap(
+            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations)
+        )(rolled)
+        k = jnp.argmin(values)
+        return values[k], {"delta": deltas[0], "torque": torques[0]}
+    if kind == "min_weight":
+        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations), {}
+    if kind == "signed_q":
+        return signed_quality(points, cone_edges(safe_normalize(normals), mu, num_edges), iterations), {}
+    if kind in ("dfc", "dfc_eig"):
+        return -dfc_energy(points, normals, center, scale, eig=kind == "dfc_eig"), {}
+    raise ValueError(f"objective must be one of {OBJECTIVES}; got {kind!r}")
+
+
+def is_positive(value, dtype) -> jax.Array:
+    """Whether an objective value counts as force-closure (above the margin tolerance)."""
+    return value > tolerances(dtype).margin

@@ -1,0 +1,445 @@
+"""Multi-start gradient optimization of contacts on an object's surface: the optimizer loop.
+
+Layers (each in its own module):
+
+* ``surfaces``: how one contact sits on and moves over each object kind (``chart``, ``retract``);
+* ``_objectives``: what is maximized, for one grasp (``objective_one``);
+* this module: one *start* advanced ``length`` steps by ``lax.scan`` (:func:`_segment`), batched
+  over all starts by ``_batch.map_grasps`` (chunks of fixed shape, ``lax.map`` over vmapped
+  blocks, sharded over local devices: the same machinery that scores grasps), segment after
+  segment so that a progress bar can follow the steps;
+* ``cli``: ``grasp-jax optimize`` on top.
+
+A step, for every start at once: the objective and its gradient with respect to an ambient
+displacement ``v: (n, d)`` of the contacts at ``v = 0`` (through ``surface.chart``, so the
+gradient is Riemannian and sees how normals turn), one optax update of ``-gradient`` (optax
+minimizes), and ``surface.retract`` by the update times the object's radius: steps are taken in
+units of the object's size, whatever its units. The best iterate of each start (by objective) is
+kept, and at the end it is scored by :func:`grasp_jax.evaluate`, the exact test: the reported
+``quality`` is exactly what ``evaluate`` returns for the reported points and normals.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import enum
+import functools
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from . import surfaces as _surfaces
+from ._api import _bind, evaluate
+from ._batch import map_grasps
+from ._constants import DEFAULT_NUM_EDGES, tolerances
+from ._objectives import OBJECTIVES, objective_one
+from ._precision import float64_scope
+from ._result import GraspEvaluation
+from ._validate import check_num_edges, check_scalar
+
+#: Default peak learning rate of Adam, in units of the object's radius per step.
+DEFAULT_LEARNING_RATE = 0.02
+#: Segments of the step loop (one compiled call each; the progress bar advances per segment).
+SEGMENTS = 20
+#: A start has converged when its best objective rose by less than this over the last
+#: :data:`CONVERGED_WINDOW` of the steps.
+CONVERGED_TOL = 1e-3
+CONVERGED_WINDOW = 0.25
+#: Distinct grasps: contacts closer than this fraction of the object's radius are the same.
+DISTINCT_TOL = 0.01
+
+_CLOSURE_KINDS = ("closure", "closure_any")
+
+
+class EndReason(enum.IntEnum):
+    """Why a start ended where it did (stored per start as ``int8``)."""
+
+    FORCE_CLOSURE = 0
+    CONVERGED = 1
+    NOT_CONVERGED = 2
+
+    @property
+    def message(self) -> str:
+        return {
+            EndReason.FORCE_CLOSURE: "force-closure reached",
+            EndReason.CONVERGED: "converged below force-closure",
+            EndReason.NOT_CONVERGED: "not converged in the step budget",
+        }[self]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class OptimizeResult:
+    """What :func:`optimize` found, one entry per start (``S`` starts, ``n`` contacts, ``d``).
+
+    Attributes:
+        points: ``(S, n, d)`` the best iterate of each start, exactly on the surface.
+        normals: ``(S, n, d)`` outward unit normals there, of kind ``normal_kind``; the grasps were
+            scored with these.
+        evaluation: :class:`GraspEvaluation` of ``points, normals`` by :func:`grasp_jax.evaluate`.
+        objective: ``(S,)`` the objective at ``points`` (the best over the steps).
+        history: ``(S, steps)`` the objective at each step's iterate.
+        quality_history: ``(S, steps)`` Q of each step's iterate where its closure objective is
+            positive (force-closure), else 0; ``None`` when not monitored.
+        reason: ``(S,) int8`` :class:`EndReason`.
+        initial_points: ``(S, n, d)`` the starts, on the surface.
+        objective_name, normal_kind: static strings; steps, seconds: the budget and the wall time.
+    """
+
+    points: jax.Array
+    normals: jax.Array
+    evaluation: GraspEvaluation
+    objective: jax.Array
+    history: jax.Array
+    quality_history: jax.Array | None
+    reason: jax.Array
+    initial_points: jax.Array
+    objective_name: str = dataclasses.field(metadata={"static": True}, default="closure")
+    normal_kind: str = dataclasses.field(metadata={"static": True}, default="smooth")
+    steps: int = dataclasses.field(metadata={"static": True}, default=0)
+    seconds: float = dataclasses.field(metadata={"static": True}, default=0.0)
+    scale: float = dataclasses.field(metadata={"static": True}, default=1.0)
+
+    @property
+    def force_closure(self) -> np.ndarray:
+        """``(S,) bool`` exact verdicts of the reported grasps."""
+        return np.asarray(self.evaluation.force_closure)
+
+    @property
+    def quality(self) -> np.ndarray:
+        """``(S,) float`` Q of the reported grasps (exactly ``evaluate``'s)."""
+        return np.asarray(self.evaluation.quality)
+
+    def distinct(self, tol: float = DISTINCT_TOL, *, force_closure_only: bool = True) -> np.ndarray:
+        """Indices of distinct grasps, best Q first.
+
+        Two grasps are the same when their first contacts and their other contacts (in any order:
+        ``c_2..c_n`` are interchangeable, ``c_1`` is the reference) fall in the same cells of a
+        grid of ``tol`` times the object's radius.
+        """
+        return distinct_grasps(np.asarray(self.points), self.quality, tol * self.scale,
+                               mask=self.force_closure if force_closure_only else None)
+
+    @property
+    def num_distinct_force_closure(self) -> int:
+        return len(self.distinct())
+
+    def summary(self) -> dict:
+        """Numbers a person looks at first (fractions, percentiles, counts, speed)."""
+        fc, q = self.force_closure, self.quality
+        reasons = np.asarray(self.reason)
+        starts = len(fc)
+        return {
+            "starts": starts,
+            "steps": self.steps,
+            "objective": self.objective_name,
+            "normals": self.normal_kind,
+            "force_closure_fraction": float(fc.mean()) if starts else 0.0,
+            "quality_percentiles": {p: float(np.percentile(q[fc], p)) if fc.any() else 0.0
+                                    for p in (50, 90, 99, 100)},
+            "distinct_force_closure": self.num_distinct_force_closure,
+            "reasons": {r.name.lower(): int((reasons == r).sum()) for r in EndReason},
+            "seconds": self.seconds,
+            "start_steps_per_second": starts * self.steps / self.seconds if self.seconds else 0.0,
+        }
+
+    def __repr__(self) -> str:
+        if not isinstance(self.points, (np.ndarray, jax.Array)) or isinstance(self.points, jax.core.Tracer):
+            return f"OptimizeResult(objective={self.objective_name!r}, traced)"
+        s = self.summary()
+        return (f"OptimizeResult({s['starts']} starts x {s['steps']} steps, objective={self.objective_name!r}, "
+                f"force-closure {100 * s['force_closure_fraction']:.1f}%, "
+                f"Q median {s['quality_percentiles'][50]:.3f} / best {s['quality_percentiles'][100]:.3f}, "
+                f"{s['distinct_force_closure']} distinct force-closure grasps, {self.seconds:.1f} s)")
+
+
+def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=None) -> np.ndarray:
+    """Indices of distinct grasps of ``points: (S, n, d)``, best ``quality`` first (see
+    :meth:`OptimizeResult.distinct`)."""
+    points = np.asarray(points, dtype=np.float64)
+    index = np.arange(len(points)) if mask is None else np.flatnonzero(mask)
+    if len(index) == 0:
+        return index
+    cells = np.floor(points[index] / cell).astype(np.int64)  # (k, n, d)
+    first, rest = cells[:, :1], cells[:, 1:]
+    # c_2..c_n in a canonical order: sort their cell rows lexicographically.
+    order = np.lexsort(tuple(rest[..., j] for j in reversed(range(rest.shape[-1]))), axis=-1) if rest.shape[1] else None
+    if order is not None:
+        rest = np.take_along_axis(rest, order[..., None], axis=1)
+    keys = np.concatenate([first, rest], axis=1).reshape(len(index), -1)
+    by_quality = np.argsort(-np.asarray(quality)[index], kind="stable")
+    _, keep = np.unique(keys[by_quality], axis=0, return_index=True)
+    return index[by_quality[np.sort(keep)]]
+
+
+# ---------------------------------------------------------------------------------------------
+# One start, one segment of steps.
+
+
+def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool):
+    """Advance one start ``length`` steps. ``args``: the leaves of the start's state (see
+    :func:`_initial_state`), then ``shared = (surface, mu, offset)``.
+
+    Returns ``(state leaves, values (length,), qualities (length,))``.
+    """
+    *leaves, (surface, mu, offset) = args
+    contacts, opt_state, best, best_value = jax.tree_util.tree_unflatten(treedef, leaves)
+    n, d = contacts.face.shape[0], surface.dim
+    dtype = contacts.coords.dtype
+    zeros = jnp.zeros((n, d), dtype)
+    margin = tolerances(dtype).margin
+
+    def value(v, contacts):
+        points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
+        return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale)
+
+    def step(carry, i):
+        contacts, opt_state, best, best_value = carry
+        (val, mon), grad = jax.value_and_grad(value, has_aux=True)(zeros, contacts)
+        grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
+        updates, new_opt = optimizer.update(-grad, opt_state, zeros)
+        moved = jax.vmap(surface.retract)(contacts, updates * surface.scale)
+        active = offset + i < total
+        better = active & (val > best_value)
+        best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, contacts)
+        best_value = jnp.where(better, val, best_value)
+        keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)
+        if kind in _CLOSURE_KINDS:
+            q = jnp.where(val > margin, mon["delta"], 0.0)
+        elif monitor:
+            points, normals = jax.vmap(surface.embed)(contacts)
+            closure, aux = objective_one(points, normals, mu, num_edges, "closure", surface.center, surface.scale)
+            q = jnp.where(closure > margin, aux["delta"], 0.0)
+        else:
+            q = jnp.zeros((), dtype)
+        return (keep(moved, contacts), keep(new_opt, opt_state), best, best_value), (val, q)
+
+    carry = (contacts, opt_state, best, best_value)
+    carry, (values, qualities) = jax.lax.scan(step, carry, jnp.arange(length))
+    return tuple(jax.tree_util.tree_leaves(carry)), values, qualities
+
+
+@functools.cache
+def default_optimizer(steps: int, learning_rate: float = DEFAULT_LEARNING_RATE) -> optax.GradientTransformation:
+    """Adam with a cosine decay from ``learning_rate`` to 1% of it over ``steps`` (cached, so
+    that repeated calls reuse the compiled step)."""
+    schedule = optax.cosine_decay_schedule(learning_rate, decay_steps=steps, alpha=0.01)
+    return optax.adam(schedule)
+
+
+# ---------------------------------------------------------------------------------------------
+# The public function.
+
+
+def optimize(
+    obj,
+    key=0,
+    *,
+    fingers: int,
+    mu,
+    starts: int = 1024,
+    steps: int = 200,
+    num_edges: int = DEFAULT_NUM_EDGES,
+    objective: str = "closure",
+    optimizer: optax.GradientTransformation | None = None,
+    learning_rate: float = DEFAULT_LEARNING_RATE,
+    init=None,
+    normals: str = "smooth",
+    dtype="float64",
+    monitor: bool = True,
+    progress: bool = False,
+) -> OptimizeResult:
+    """Move the contacts of many grasps over an object's surface to maximize an objective.
+
+    Args:
+        obj: an object of :mod:`grasp_jax.objects` (polygon, mesh, analytic shape, built-in) or a
+            :class:`grasp_jax.surfaces.Surface`.
+        key: a ``jax.random`` key or an integer seed for the random starts (the same key gives
+            the same result).
+        fingers: contacts per grasp, >= 2 (``c_1`` is contact 0).
+        mu: friction coefficient > 0.
+        starts: number of random starts (ignored when ``init`` is given).
+        steps: optimizer steps, >= 1.
+        num_edges: edges per 3D friction cone.
+        objective: one of :data:`grasp_jax.OBJECTIVES` (see :mod:`grasp_jax._objectives`):
+            ``"closure"`` (default), ``"closure_any"``, ``"min_weight"``, ``"signed_q"``, ``"dfc"``,
+            ``"dfc_eig"``.
+        optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
+            object's radius (default: :func:`default_optimizer`, Adam with cosine decay). Pass the
+            same object again to reuse the compiled program.
+        learning_rate: peak learning rate of the default optimizer.
+        init: your own starts instead of random ones: ``(S, fingers, d)`` points (or a
+            ``(points, normals)`` pair, for example the best grasps of ``grasp-jax sample``); each
+            is moved to the closest surface point.
+        normals: ``"smooth"`` (interpolated vertex normals, sharp edges kept) or ``"flat"`` (face
+            normals) on meshes and polygons; analytic shapes use their exact normals.
+        dtype: ``"float64"`` (computed under a scoped x64 switch) or ``"float32"``.
+        monitor: record Q per step (``quality_history``) for objectives other than the closure
+            ones (costs one quality LP per step; free for the closure objectives).
+        progress: show a progress bar over the steps.
+
+    Returns:
+        :class:`OptimizeResult`.
+
+    Raises:
+        ValueError / TypeError: bad arguments, said in one sentence before anything is computed.
+    """
+    t0 = time.perf_counter()
+    surface = _surface(obj, normals)
+    fingers = _check_int("fingers", fingers, 2)
+    steps = _check_int("steps", steps, 1)
+    mu = check_scalar("mu", mu)
+    num_edges = check_num_edges(num_edges)
+    learning_rate = check_scalar("learning_rate", learning_rate)
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES))}; got {objective!r}")
+    if optimizer is None:
+        optimizer = default_optimizer(steps, learning_rate)
+    elif not isinstance(optimizer, optax.GradientTransformation):
+        raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
+                        f"got {type(optimizer).__name__}")
+    dtype = _check_dtype(dtype)
+    init_points = None if init is None else _check_init(init, fingers, surface.dim)
+    if init_points is None:
+        starts = _check_int("starts", starts, 1)
+        key = _check_key(key)
+    else:
+        starts = len(init_points)
+    scope = float64_scope() if dtype == np.float64 else contextlib.nullcontext()
+    with scope:
+        surface = surface.astype(dtype) if hasattr(surface, "astype") else surface
+        if init_points is None:
+            contacts = surface.sample(key, starts * fingers)
+            contacts = jax.tree_util.tree_map(lambda a: a.reshape((starts, fingers) + a.shape[1:]), contacts)
+        else:
+            contacts = surface.locate(init_points)
+        contacts = jax.tree_util.tree_map(
+            lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
+        )
+        initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
+        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, progress)
+        points, normals_out, best_value, history, qualities = result
+        evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges)
+    reason = _end_reasons(np.asarray(evaluation.force_closure), history)
+    return OptimizeResult(
+        points=points, normals=normals_out, evaluation=evaluation, objective=best_value, history=history,
+        quality_history=qualities, reason=reason, initial_points=initial_points,
+        objective_name=objective, normal_kind=surface.normal_kind, steps=steps,
+        seconds=time.perf_counter() - t0, scale=float(surface.scale),
+    )
+
+
+def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, progress):
+    """All starts through ``steps`` steps, :data:`SEGMENTS` compiled calls of equal length."""
+    starts, n = contacts.face.shape[:2]
+    dtype = contacts.coords.dtype
+    d = surface.dim
+    opt_state = jax.vmap(optimizer.init)(jnp.zeros((starts, n, d), dtype))
+    state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype))
+    leaves, treedef = jax.tree_util.tree_flatten(state)
+    length = math.ceil(steps / min(SEGMENTS, steps))
+    fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
+               length=length, total=steps, monitor=monitor)
+    mu = jnp.asarray(mu, dtype)
+    values, qualities = [], []
+    segments = range(0, steps, length)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=steps, unit="step", desc=f"optimizing {starts:,} starts")
+    for offset in segments:
+        shared = (surface, mu, jnp.asarray(offset, jnp.int32))
+        leaves, vals, qs = map_grasps(fn, tuple(leaves), shared, (starts,))
+        leaves = list(leaves)
+        values.append(np.asarray(vals))
+        qualities.append(np.asarray(qs))
+        if bar is not None:
+            bar.update(min(length, steps - offset))
+            best = np.asarray(leaves[-1])
+            bar.set_postfix(positive=f"{np.mean(best > tolerances(dtype).margin):.0%}",
+                            median=f"{np.median(best):.3f}")
+    if bar is not None:
+        bar.close()
+    contacts, _, best, best_value = jax.tree_util.tree_unflatten(treedef, leaves)
+    points, normals = jax.vmap(jax.vmap(surface.embed))(best)
+    history = np.concatenate(values, axis=1)[:, :steps]
+    track = monitor or kind in _CLOSURE_KINDS
+    qualities = np.concatenate(qualities, axis=1)[:, :steps] if track else None
+    return np.asarray(points), np.asarray(normals), np.asarray(best_value), history, qualities
+
+
+def _end_reasons(force_closure: np.ndarray, history: np.ndarray) -> np.ndarray:
+    steps = history.shape[1]
+    running = np.maximum.accumulate(history, axis=1)
+    back = max(1, round(CONVERGED_WINDOW * steps))
+    gain = running[:, -1] - running[:, max(0, steps - 1 - back)]
+    converged = gain <= CONVERGED_TOL * np.maximum(1.0, np.abs(running[:, -1]))
+    reason = np.where(force_closure, EndReason.FORCE_CLOSURE,
+                      np.where(converged, EndReason.CONVERGED, EndReason.NOT_CONVERGED))
+    return reason.astype(np.int8)
+
+
+# ---------------------------------------------------------------------------------------------
+# Checks of user input.
+
+
+def _surface(obj, normals: str):
+    if isinstance(obj, _surfaces.Surface) and not hasattr(obj, "sample_surface"):
+        return obj
+    if normals not in ("smooth", "flat"):
+        raise ValueError(f"normals must be 'smooth' or 'flat'; got {normals!r}")
+    if obj is None or not hasattr(obj, "dim"):
+        raise ValueError(f"obj must be an object of grasp_jax.objects (for example grasp_jax.objects.load('glass')) "
+                         f"or a grasp_jax.surfaces.Surface; got {type(obj).__name__}")
+    return _surfaces.for_object(obj, normals=normals)
+
+
+def _check_int(name: str, value, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
+    return int(value)
+
+
+def _check_dtype(dtype):
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.float32, np.float64):
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}")
+    return dt
+
+
+def _check_key(key):
+    if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
+        if key < 0:
+            raise ValueError(f"key must be a jax.random key or a non-negative integer seed; got {key!r}")
+        return jax.random.key(int(key))
+    if isinstance(key, jax.Array) and (jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+                                       or (key.dtype == jnp.uint32 and key.shape == (2,))):
+        return key
+    raise ValueError(f"key must be a jax.random key or a non-negative integer seed; got {type(key).__name__}")
+
+
+def _check_init(init, fingers: int, d: int) -> np.ndarray:
+    if isinstance(init, tuple) and len(init) == 2:
+        init = init[0]
+    try:
+        points = np.asarray(init, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"init must be an array of points of shape (starts, {fingers}, {d}); "
+                         f"got {type(init).__name__}") from None
+    if points.ndim == 2:
+        points = points[None]
+    if points.ndim != 3 or points.shape[1:] != (fingers, d) or len(points) == 0:
+        raise ValueError(f"init must have shape (starts, {fingers}, {d}) for {fingers} fingers on a "
+                         f"{d}D object; got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("init must be finite")
+    return points
