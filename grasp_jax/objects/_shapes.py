@@ -100,8 +100,9 @@ class Sphere(_Analytic):
         self.radius, self.name = float(radius), name
 
     def project(self, points):
-        normals = unit(np.asarray(points, float))
-        return self.radius * normals, normals
+        from ..surfaces import _analytic  # the one implementation, in JAX
+
+        return _analytic.project(_analytic.sphere_map, points, self.radius)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""
@@ -121,9 +122,9 @@ class Ellipsoid(_Analytic):
         self.radius, self.name = float(self.axes.max()), name
 
     def project(self, points):
-        points = np.asarray(points, float)
-        points = points / np.linalg.norm(points / self.axes, axis=1, keepdims=True)
-        return points, unit(points / self.axes**2)
+        from ..surfaces import _analytic  # the one implementation, in JAX
+
+        return _analytic.project(_analytic.ellipsoid_map, points, self.axes)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area (rejection from the sphere map) and outward unit
@@ -153,15 +154,9 @@ class Box(_Analytic):
         self.radius, self.name = float(np.linalg.norm(self.extents) / 2), name
 
     def project(self, points):
-        points = np.asarray(points, float)
-        half = self.extents / 2
-        axis = np.argmax(np.abs(points) / half, axis=1)
-        normals = np.zeros_like(points)
-        rows = np.arange(len(points))
-        normals[rows, axis] = np.sign(points[rows, axis])
-        points = np.clip(points, -half, half)
-        points[rows, axis] = normals[rows, axis] * half[axis]
-        return points, normals
+        from ..surfaces import _analytic  # the one implementation, in JAX
+
+        return _analytic.project(_analytic.box_map, points, self.extents / 2)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""
@@ -195,18 +190,9 @@ class Cylinder(_Analytic):
         self.radius = math.hypot(self.section_radius, self.height / 2)
 
     def project(self, points):
-        points = np.array(points, dtype=float)
-        r, half = self.section_radius, self.height / 2
-        rho = np.linalg.norm(points[:, :2], axis=1)
-        cap = np.abs(points[:, 2]) / half >= rho / r
-        normals = np.zeros_like(points)
-        normals[cap, 2] = np.sign(points[cap, 2])
-        normals[~cap, :2] = points[~cap, :2] / rho[~cap, None]
-        points[cap, 2] = normals[cap, 2] * half
-        points[cap, :2] *= np.minimum(1.0, r / np.maximum(rho[cap], 1e-300))[:, None]
-        points[~cap, :2] = r * normals[~cap, :2]
-        points[~cap, 2] = np.clip(points[~cap, 2], -half, half)
-        return points, normals
+        from ..surfaces import _analytic  # the one implementation, in JAX
+
+        return _analytic.project(_analytic.cylinder_map, points, self.section_radius, self.height / 2)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""

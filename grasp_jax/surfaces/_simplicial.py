@@ -1,0 +1,396 @@
+"""Simplicial surfaces: triangle meshes (d = 3) and polygon boundaries with holes (d = 2), one
+implementation.
+
+A *face* is a simplex of ``d`` vertices (a triangle in 3D, an edge of a ring in 2D) and a contact
+holds its face index and ``d`` barycentric coordinates ``b >= 0, sum b = 1``; the point is
+``sum_i b_i V[faces[f, i]]``, on the surface up to the rounding of one convex combination.
+
+``retract(c, v)`` writes the tangent part of ``v`` as a barycentric velocity ``G_f v`` (the rows
+of ``G_f`` are the gradients of the barycentric coordinates), moves until a coordinate reaches 0
+(the contact leaves the face through the sub-simplex opposite that corner: an edge in 3D, a
+vertex in 2D), steps onto the neighbouring face there and turns the rest of the displacement
+into the neighbour's plane (a rotation about the shared edge in 3D; in 2D the direction along
+the next edge of the ring), up to ``max_crossings`` times. Barycentrics are clipped to >= 0 and
+renormalized after every crossing. An open mesh's boundary edge stops the contact.
+
+Normals: ``"flat"`` is the face normal; ``"smooth"`` interpolates per-corner normals with the
+barycentrics and normalizes, the corner normal of face ``f`` at vertex ``v`` being the
+angle-weighted (2D: equal-weighted) mean of the normals of the faces at ``v`` within
+``crease_angle`` of ``f``'s normal. Normals are continuous across smooth edges and constant on
+flat regions; edges sharper than the crease angle stay sharp.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.spatial
+import trimesh
+
+from ._base import Contact
+from ._util import check_count, check_one, host_points, pytree, tangent, unit
+
+#: pairs of (corner, incidence) handled at once when building corner normals on the host
+_CHUNK = 1 << 22
+
+
+@pytree(
+    data=("vertices", "faces", "normals", "corners", "grads", "neighbors", "rotations", "areas",
+          "center"),
+    meta=("dim", "scale", "normal_kind", "max_crossings"),
+)
+class SimplicialSurface:
+    """A triangle mesh (``dim = 3``) or polygon boundary (``dim = 2``) as a pytree. Build it with
+    :func:`from_simplices` (or :func:`grasp_jax.surfaces.for_object`).
+
+    Attributes:
+        vertices: ``(V, d) float``.
+        faces: ``(F, d) int32`` vertex indices; a 2D face runs along its ring (material on the left).
+        normals: ``(F, d) float`` outward unit face normals.
+        corners: ``(F, d, d) float`` unit normal at each face corner (``"smooth"``; the face
+            normal repeated for ``"flat"``).
+        grads: ``(F, d, d) float`` row ``i``: the gradient of barycentric ``i`` (in the face's
+            plane), so ``db = grads[f] @ v``.
+        neighbors: ``(F, d) int32`` the face across the sub-simplex opposite corner ``i`` (-1 at a
+            boundary; one neighbour, chosen consistently, at a non-manifold edge).
+        rotations: ``(F, d, d, d) float`` the rotation taking face ``f``'s plane onto that
+            neighbour's plane about the shared edge / vertex.
+        areas: ``(F,) float`` triangle areas / edge lengths.
+        center: ``(d,) float`` the object's centre.
+        dim, scale, normal_kind, max_crossings: static.
+    """
+
+    vertices: jax.Array
+    faces: jax.Array
+    normals: jax.Array
+    corners: jax.Array
+    grads: jax.Array
+    neighbors: jax.Array
+    rotations: jax.Array
+    areas: jax.Array
+    center: jax.Array
+    dim: int = 3
+    scale: float = 1.0
+    normal_kind: str = "smooth"
+    max_crossings: int = 32
+
+    # ---------------------------------------------------------------- pure JAX, one contact
+
+    def _point(self, f, b):
+        return b @ jnp.asarray(self.vertices, b.dtype)[jnp.asarray(self.faces)[f]]
+
+    def _normal(self, f, b):
+        if self.normal_kind == "flat":
+            return jnp.asarray(self.normals, b.dtype)[f]
+        return unit(b @ jnp.asarray(self.corners, b.dtype)[f], jnp.asarray(self.normals, b.dtype)[f])
+
+    def embed(self, contact: Contact) -> tuple[jax.Array, jax.Array]:
+        """``(point (d,), outward unit normal (d,))`` of one contact."""
+        check_one("embed", contact, self.dim)
+        f, b = jnp.asarray(contact.face), jnp.asarray(contact.coords)
+        return self._point(f, b), self._normal(f, b)
+
+    def chart(self, contact: Contact, v: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The point ``p + P_f v`` in face ``f``'s plane and the normal interpolated with its
+        (linearly extended) barycentrics ``b + G_f v``; ``chart(c, 0) == embed(c)`` exactly."""
+        check_one("chart", contact, self.dim, v)
+        f, b = jnp.asarray(contact.face), jnp.asarray(contact.coords)
+        bv = b + jnp.asarray(self.grads, b.dtype)[f] @ jnp.asarray(v, b.dtype)
+        return self._point(f, bv), self._normal(f, bv)
+
+    def retract(self, contact: Contact, v: jax.Array) -> Contact:
+        """One contact moved by the tangent part of ``v: (d,)`` along the surface, across up to
+        ``max_crossings`` edges (2D: corners)."""
+        check_one("retract", contact, self.dim, v)
+        f0, b0 = jnp.asarray(contact.face), jnp.asarray(contact.coords)
+        dtype = b0.dtype
+        grads = jnp.asarray(self.grads, dtype)
+        faces, neighbors = jnp.asarray(self.faces), jnp.asarray(self.neighbors)
+        rotations = jnp.asarray(self.rotations, dtype)
+        w0 = tangent(jnp.asarray(v, dtype), jnp.asarray(self.normals, dtype)[f0])
+        eps = jnp.finfo(dtype).eps
+
+        def moving(state):
+            _, _, _, k, done = state
+            return (k < self.max_crossings) & ~done
+
+        def cross(state):
+            f, b, w, k, _ = state
+            db = grads[f] @ w
+            leaving = db < -8 * eps * jnp.sum(jnp.abs(db))
+            t = jnp.where(leaving, b / jnp.where(leaving, -db, 1.0), jnp.inf)
+            i = jnp.argmin(t)
+            crossed = t[i] < 1
+            step = jnp.where(crossed, t[i], 1.0)
+            b = b + step * db
+            b = jnp.where(crossed & (jnp.arange(self.dim) == i), 0.0, b)
+            b = _clean(b)
+            g = neighbors[f, i]
+            over = crossed & (g >= 0)
+            # the same point in face g's barycentrics: match the shared vertices
+            same = faces[f][:, None] == faces[jnp.maximum(g, 0)][None, :]
+            b_g = _clean(b @ same.astype(dtype))
+            w_g = rotations[f, i] @ ((1 - step) * w)
+            f_new = jnp.where(over, g, f)
+            return (f_new, jnp.where(over, b_g, b), jnp.where(over, w_g, jnp.zeros_like(w)), k + 1,
+                    ~over)
+
+        state = (f0, _clean(b0), w0, jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+        f, b, _, _, _ = jax.lax.while_loop(moving, cross, state)
+        return Contact(f.astype(f0.dtype), b)
+
+    def sample(self, key: jax.Array, count: int) -> Contact:
+        """``count`` contacts uniform by area (2D: length): face ``(count,) int32``, coords
+        ``(count, d)``."""
+        count = check_count(count)
+        dtype = jnp.result_type(float)
+        k_face, k_bary = jax.random.split(key)
+        areas = jnp.asarray(self.areas, dtype)
+        face = jax.random.choice(k_face, areas.shape[0], (count,), p=areas / areas.sum())
+        u = jax.random.uniform(k_bary, (count, self.dim - 1), dtype)
+        if self.dim == 2:
+            b = jnp.concatenate([1 - u, u], 1)
+        else:
+            # the gaps between two sorted uniforms are uniform barycentrics
+            lo, hi = jnp.min(u, 1), jnp.max(u, 1)
+            b = jnp.stack([lo, hi - lo, 1 - hi], 1)
+        return Contact(face.astype(jnp.int32), b)
+
+    # ---------------------------------------------------------------- host
+
+    def locate(self, points) -> Contact:
+        """Host side: the contacts at the surface points closest to ``points: (..., d)``
+        (face ``(...) int32``, coords ``(..., d) float64``)."""
+        points = host_points(points, self.dim)
+        shape = points.shape[:-1]
+        flat = points.reshape(-1, self.dim)
+        corners = np.asarray(self.vertices, float)[np.asarray(self.faces)]
+        if len(flat) == 0:
+            face, b = np.zeros(0, np.int32), np.zeros((0, self.dim))
+        elif self.dim == 2:
+            face, b = _closest_on_segments(corners, flat)
+        else:
+            face, b = _closest_on_triangles(corners, np.asarray(self.vertices, float), flat)
+        return Contact(face.reshape(shape).astype(np.int32), b.reshape(*shape, self.dim))
+
+
+def _clean(b):
+    """Barycentrics clipped to >= 0 and renormalized."""
+    b = jnp.maximum(b, 0.0)
+    total = jnp.sum(b)
+    return jnp.where(total > 0, b / jnp.where(total > 0, total, 1.0), jnp.full_like(b, 1.0 / b.shape[0]))
+
+
+# -------------------------------------------------------------------- host-side construction
+
+
+def from_simplices(vertices, faces, normals, *, center, scale: float, normal_kind: str = "smooth",
+                   crease_angle: float = 30.0, max_crossings: int = 32) -> SimplicialSurface:
+    """Precompute a :class:`SimplicialSurface` on the host.
+
+    Args:
+        vertices: ``(V, d) float``, d = 2 or 3.
+        faces: ``(F, d) int`` simplices (triangles / ring edges), non-degenerate.
+        normals: ``(F, d) float`` outward unit face normals.
+        center: ``(d,) float``; scale: the object's radius.
+        normal_kind: ``"smooth"`` or ``"flat"``.
+        crease_angle: degrees; faces whose normals differ by more are not smoothed together.
+        max_crossings: the most faces one ``retract`` passes through.
+    """
+    if normal_kind not in ("smooth", "flat"):
+        raise ValueError(f"normals must be 'smooth' or 'flat'; got {normal_kind!r}")
+    crease_angle = float(crease_angle)
+    if not 0.0 <= crease_angle <= 180.0:
+        raise ValueError(f"crease_angle must be in [0, 180] degrees; got {crease_angle!r}")
+    if isinstance(max_crossings, bool) or not isinstance(max_crossings, (int, np.integer)) or max_crossings < 1:
+        raise ValueError(f"max_crossings must be an integer >= 1; got {max_crossings!r}")
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    normals = np.asarray(normals, dtype=float)
+    d = vertices.shape[1]
+    corner = vertices[faces]  # (F, d, d)
+    if d == 3:
+        edges = np.stack([corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]], 1)  # (F, 2, 3)
+        areas = 0.5 * np.linalg.norm(np.cross(edges[:, 0], edges[:, 1]), axis=1)
+        g12 = np.linalg.pinv(edges @ edges.transpose(0, 2, 1)) @ edges  # (F, 2, 3)
+        grads = np.concatenate([-g12.sum(1, keepdims=True), g12], 1)
+    else:
+        edge = corner[:, 1] - corner[:, 0]
+        areas = np.linalg.norm(edge, axis=1)
+        g1 = edge / (areas**2)[:, None]
+        grads = np.stack([-g1, g1], 1)
+    neighbors, partner = _neighbors(faces)
+    rotations = _rotations(vertices, faces, normals, neighbors, partner)
+    if normal_kind == "smooth":
+        corners = _corner_normals(vertices, faces, normals, np.cos(np.radians(crease_angle)))
+    else:
+        corners = np.repeat(normals[:, None], d, 1)
+    return SimplicialSurface(
+        vertices=vertices, faces=faces.astype(np.int32), normals=normals, corners=corners,
+        grads=grads, neighbors=neighbors.astype(np.int32), rotations=rotations, areas=areas,
+        center=np.asarray(center, float).reshape(d), dim=d, scale=float(scale),
+        normal_kind=normal_kind, max_crossings=int(max_crossings))
+
+
+def _neighbors(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per (face, corner i): the face sharing the sub-simplex opposite corner i and the corner of
+    that face opposite it, ``(F, d) int`` each (-1 where none). Where more than two faces share
+    it, each takes the next one in index order, cyclically."""
+    n, d = faces.shape
+    keep = ~np.eye(d, dtype=bool)
+    keys = np.sort(np.stack([faces[:, keep[i]] for i in range(d)], 1), axis=2).reshape(n * d, d - 1)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    order = np.argsort(group, kind="stable")
+    sorted_group = group[order]
+    start = np.searchsorted(sorted_group, sorted_group, side="left")
+    size = np.searchsorted(sorted_group, sorted_group, side="right") - start
+    pos = np.arange(n * d) - start
+    nxt = np.empty(n * d, dtype=np.int64)
+    nxt[order] = order[start + (pos + 1) % size]
+    alone = np.empty(n * d, dtype=bool)
+    alone[order] = size == 1
+    neighbor = np.where(alone, -1, nxt // d).reshape(n, d)
+    partner = np.where(alone, -1, nxt % d).reshape(n, d)
+    return neighbor, partner
+
+
+def _rotations(vertices, faces, normals, neighbors, partner) -> np.ndarray:
+    """``(F, d, d, d)``: per (face, corner i) the rotation taking the face's plane to the
+    neighbour's across the sub-simplex opposite corner i (identity at a boundary)."""
+    n, d = faces.shape
+    rot = np.broadcast_to(np.eye(d), (n, d, d, d)).copy()
+    f, i = np.nonzero(neighbors >= 0)
+    g, k = neighbors[f, i], partner[f, i]
+    apex_f = vertices[faces[f, i]]
+    apex_g = vertices[faces[g, k]]
+    base = vertices[faces[f, (i + 1) % d]]  # a vertex of the shared sub-simplex
+    if d == 3:
+        e = vertices[faces[f, (i + 2) % 3]] - base
+        e /= np.linalg.norm(e, axis=1, keepdims=True)
+        out_f = base - apex_f
+        out_f -= np.einsum("ij,ij->i", out_f, e)[:, None] * e
+        in_g = apex_g - base
+        in_g -= np.einsum("ij,ij->i", in_g, e)[:, None] * e
+        edge_part = e[:, :, None] * e[:, None, :]
+    else:
+        out_f, in_g = base - apex_f, apex_g - base
+        edge_part = 0.0
+    out_f /= np.linalg.norm(out_f, axis=1, keepdims=True)
+    in_g /= np.linalg.norm(in_g, axis=1, keepdims=True)
+    rot[f, i] = (edge_part + in_g[:, :, None] * out_f[:, None, :]
+                 + normals[g][:, :, None] * normals[f][:, None, :])
+    return rot
+
+
+def _corner_normals(vertices, faces, normals, cos_crease: float) -> np.ndarray:
+    """``(F, d, d)`` unit normal at each face corner: the weighted mean of the normals of the
+    faces at that vertex whose normal is within the crease angle of this face's (weights: the
+    faces' angles at the vertex in 3D, 1 in 2D)."""
+    n, d = faces.shape
+    if d == 3:
+        c = vertices[faces]
+        a = c[:, [1, 2, 0]] - c
+        b = c[:, [2, 0, 1]] - c
+        cos = np.einsum("fij,fij->fi", a, b) / (np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2))
+        weight = np.arccos(np.clip(cos, -1.0, 1.0)).ravel()
+    else:
+        weight = np.ones(n * d)
+    vert = faces.ravel()
+    face = np.repeat(np.arange(n), d)
+    order = np.argsort(vert, kind="stable")
+    sv = vert[order]
+    start = np.searchsorted(sv, sv, side="left")
+    size = np.searchsorted(sv, sv, side="right") - start
+    total = np.zeros((n * d, d))
+    pairs = np.cumsum(size)  # pairs up to and including each sorted incidence
+    lo = 0
+    while lo < n * d:  # blocks of sorted incidences with about _CHUNK (corner, incidence) pairs
+        done = pairs[lo - 1] if lo else 0
+        hi = max(lo + 1, int(np.searchsorted(pairs, done + _CHUNK, side="right")))
+        me = np.repeat(np.arange(lo, hi), size[lo:hi])
+        within = np.arange(len(me)) - np.repeat(pairs[lo:hi] - size[lo:hi] - done, size[lo:hi])
+        other = start[me] + within
+        fa, fb = face[order[me]], face[order[other]]
+        near = np.einsum("ij,ij->i", normals[fa], normals[fb]) >= cos_crease
+        contrib = (weight[order[other]] * near)[:, None] * normals[fb]
+        np.add.at(total, order[me], contrib)
+        lo = hi
+    length = np.linalg.norm(total, axis=1, keepdims=True)
+    own = np.repeat(normals, d, 0)
+    total = np.where(length > 0, total / np.where(length > 0, length, 1.0), own)
+    return total.reshape(n, d, d)
+
+
+def _closest_on_segments(corners: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point on segments ``corners: (E, 2, 2)`` to each of ``points: (n, 2)``: edge index
+    and barycentrics ``(n, 2)``."""
+    a, e = corners[:, 0], corners[:, 1] - corners[:, 0]
+    ee = np.einsum("ij,ij->i", e, e)
+    face, b = np.zeros(len(points), np.int64), np.zeros((len(points), 2))
+    step = max(1, _CHUNK // len(a))
+    for lo in range(0, len(points), step):
+        p = points[lo:lo + step, None, :]
+        t = np.clip(np.einsum("pij,ij->pi", p - a, e) / ee, 0.0, 1.0)
+        dist = np.linalg.norm(a + t[..., None] * e - p, axis=2)
+        best = np.argmin(dist, axis=1)
+        tb = t[np.arange(len(best)), best]
+        face[lo:lo + step], b[lo:lo + step] = best, np.stack([1 - tb, tb], 1)
+    return face, b
+
+
+def _closest_on_triangles(corners: np.ndarray, vertices: np.ndarray,
+                          points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point on triangles ``corners: (F, 3, 3)`` to each of ``points: (n, 3)``: face index
+    and barycentrics ``(n, 3)``. Candidates: triangles whose bounding ball is within the distance
+    to the nearest vertex (an upper bound), found with KD-trees; exact distances by trimesh."""
+    near, _ = scipy.spatial.cKDTree(vertices).query(points)
+    centroid = corners.mean(1)
+    reach = np.linalg.norm(corners - centroid[:, None], axis=2).max(1)
+    lists = scipy.spatial.cKDTree(centroid).query_ball_point(points, near + reach.max() * (1 + 1e-9))
+    count = np.array([len(c) for c in lists])
+    tri = np.concatenate([np.asarray(c, dtype=np.int64) for c in lists])
+    who = np.repeat(np.arange(len(points)), count)
+    face, closest = np.zeros(len(points), np.int64), np.zeros_like(points)
+    step = _CHUNK // 8
+    dist = np.empty(len(tri))
+    pts = np.empty((len(tri), 3))
+    for lo in range(0, len(tri), step):
+        sl = slice(lo, lo + step)
+        pts[sl] = trimesh.triangles.closest_point(corners[tri[sl]], points[who[sl]])
+        dist[sl] = np.linalg.norm(pts[sl] - points[who[sl]], axis=1)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    best = first + np.array([np.argmin(dist[s:s + c]) for s, c in zip(first, count)])
+    face, closest = tri[best], pts[best]
+    b = trimesh.triangles.points_to_barycentric(corners[face], closest)
+    b = np.clip(b, 0.0, None)
+    b /= b.sum(1, keepdims=True)
+    return face, b
+
+
+def for_mesh(obj, *, normals: str = "smooth", crease_angle: float = 30.0,
+             max_crossings: int = 32) -> SimplicialSurface:
+    """The surface of a :class:`grasp_jax.objects.Mesh` (or any object with a trimesh ``.mesh``,
+    ``.center`` and ``.radius``)."""
+    mesh = obj.mesh
+    return from_simplices(np.asarray(mesh.vertices, float), np.asarray(mesh.faces),
+                          np.asarray(mesh.face_normals, float), center=obj.center,
+                          scale=float(obj.radius), normal_kind=normals, crease_angle=crease_angle,
+                          max_crossings=max_crossings)
+
+
+def for_polygon(obj, *, normals: str = "smooth", crease_angle: float = 30.0,
+                max_crossings: int = 32) -> SimplicialSurface:
+    """The boundary of a :class:`grasp_jax.objects.Polygon`: its rings' edges, in the order and
+    with the outward normals of the polygon's own facets."""
+    from ..objects._polygon import _edge_normals, _ring_edges
+
+    rings = [np.asarray(r, float) for r in obj.rings]
+    offsets = np.cumsum([0] + [len(r) for r in rings])
+    faces = np.concatenate([np.stack([o + np.arange(len(r)), o + (np.arange(len(r)) + 1) % len(r)], 1)
+                            for o, r in zip(offsets, rings)])
+    start, end = _ring_edges(rings)
+    return from_simplices(np.concatenate(rings), faces, _edge_normals(start, end), center=obj.center,
+                          scale=float(obj.radius), normal_kind=normals, crease_angle=crease_angle,
+                          max_crossings=max_crossings)

@@ -1,0 +1,79 @@
+"""Small pieces shared by the surfaces: gradient-safe normalization, tangent projection, the
+pytree-dataclass decorator and the one-contact check."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._base import Contact
+
+
+def unit(x: jax.Array, fallback: jax.Array | None = None) -> jax.Array:
+    """Rows of ``x: (..., d)`` scaled to unit length; ``fallback`` (default the last axis vector)
+    where a row is zero, with finite gradients there (``where`` swap before the square root)."""
+    sq = jnp.sum(x * x, axis=-1, keepdims=True)
+    ok = sq > 0
+    safe = jnp.where(ok, x, 1.0) / jnp.sqrt(jnp.where(ok, sq, x.shape[-1]))
+    if fallback is None:
+        fallback = jnp.zeros(x.shape[-1], x.dtype).at[-1].set(1.0)
+    return jnp.where(ok, safe, fallback)
+
+
+def norm(x: jax.Array) -> jax.Array:
+    """``|x|`` over the last axis, with a finite (zero) gradient at 0."""
+    sq = jnp.sum(x * x, axis=-1)
+    ok = sq > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+
+
+def tangent(v: jax.Array, normal: jax.Array) -> jax.Array:
+    """The part of ``v: (d,)`` orthogonal to the unit ``normal: (d,)``."""
+    return v - jnp.dot(v, normal) * normal
+
+
+def sign(x: jax.Array) -> jax.Array:
+    """+1 where ``x >= 0``, -1 elsewhere (never 0)."""
+    return jnp.where(x >= 0, 1.0, -1.0).astype(jnp.result_type(x, float))
+
+
+def pytree(data: tuple[str, ...], meta: tuple[str, ...]):
+    """Register a frozen dataclass as a pytree: ``data`` fields are leaves (arrays), ``meta``
+    fields are static (hashable)."""
+
+    def wrap(cls):
+        cls = dataclasses.dataclass(frozen=True, eq=False)(cls)
+        return jax.tree_util.register_dataclass(cls, data_fields=list(data), meta_fields=list(meta))
+
+    return wrap
+
+
+def check_one(name: str, contact: Contact, k: int, v: jax.Array | None = None) -> None:
+    """Trace-time check that ``contact`` (and ``v``) describe ONE contact of a surface whose
+    coordinates have ``k`` entries; raises ``ValueError`` naming the method."""
+    coords = jnp.shape(contact.coords)
+    if coords != (k,) or jnp.shape(contact.face) != ():
+        raise ValueError(f"{name}: takes one contact (face (), coords ({k},)); got face "
+                         f"{jnp.shape(contact.face)} and coords {coords}; batch with jax.vmap.")
+    if v is not None and jnp.shape(v) != (k,):
+        raise ValueError(f"{name}: v must be one displacement of shape ({k},); got {jnp.shape(v)}; "
+                         "batch with jax.vmap.")
+
+
+def check_count(count) -> int:
+    """A static integer number of samples >= 0."""
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+        raise ValueError(f"sample: count must be an integer >= 0 (static); got {count!r}")
+    return int(count)
+
+
+def host_points(points, dim: int) -> np.ndarray:
+    """``points`` as a float64 NumPy array of shape ``(..., dim)``."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim < 1 or points.shape[-1] != dim or not np.isfinite(points).all():
+        raise ValueError(f"locate: points must be finite with shape (..., {dim}); got shape "
+                         f"{points.shape}")
+    return points
