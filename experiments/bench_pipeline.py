@@ -80,9 +80,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=HERE / "results" / "bench_pipeline.json")
     args = ap.parse_args(argv)
 
+    from grasp_jax import devices as _devices
     from grasp_jax import pipeline
 
-    pipeline.configure_cpu_devices(args.devices)  # before JAX starts its backend
+    _devices.configure_cpu_devices(args.devices)  # before JAX starts its backend
 
     import warnings
 
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
     num, fingers = args.num, args.fingers
     devices = len(jax.local_devices())
     print(f"{args.object}, {fingers} fingers, {num:,} grasps, chunk {chunk:,}, {devices} CPU devices "
-          f"({pipeline.available_cores()} cores)", flush=True)
+          f"({_devices.available_cores()} cores)", flush=True)
 
     with tempfile.TemporaryDirectory(prefix="bench_pipeline_") as tmp:
         tmp = Path(tmp)
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
     compile_est = max(compile_s - warm.num / raw_rate, 0.0)  # the warm-up also scored one chunk
     result = {
         "machine": {"platform": platform.platform(), "python": platform.python_version(),
-                    "jax": jax.__version__, "cores": pipeline.available_cores(), "devices": devices},
+                    "jax": jax.__version__, "cores": _devices.available_cores(), "devices": devices},
         "object": args.object, "fingers": fingers, "num": num, "chunk": chunk,
         "warmup_seconds": compile_s,
         "compile_seconds_estimate": compile_est,

@@ -301,12 +301,12 @@ def _enable_compilation_cache() -> None:
 
 def _setup(args) -> None:
     """Devices, processes and the compilation cache, before JAX starts its backend."""
-    from . import pipeline
+    from . import devices
 
-    pipeline.configure_cpu_devices(args.devices)
+    devices.configure_cpu_devices(args.devices)
     _enable_compilation_cache()
-    if args.distributed or pipeline.distributed_requested():
-        pipeline.initialize_distributed(force=True)
+    if args.distributed or devices.distributed_requested():
+        devices.initialize_distributed(force=True)
         args.distributed = True
 
 
@@ -329,7 +329,7 @@ def _holes(args, meta) -> list:
 
 
 def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | None = None) -> Path:
-    """Draw the grasps of a :class:`grasp_jax.pipeline.BestGrasps` on ``obj`` in one figure (atomic)."""
+    """Draw the grasps of a :class:`grasp_jax.summary.BestGrasps` on ``obj`` in one figure (atomic)."""
     import numpy as np
 
     from . import plotting, storage
@@ -389,12 +389,12 @@ def _mesh(obj):
 
 
 def _report(args, summary, best_lines: int = 0) -> None:
-    from . import pipeline
+    from . import summary as _summary
 
     if args.quiet:
         return
     if args.json:
-        print(pipeline.summary_json(summary), flush=True)
+        print(_summary.summary_json(summary), flush=True)
         return
     print(summary.format(best=max(best_lines, 1)), flush=True)
 
@@ -405,7 +405,7 @@ def _plot_summary(args, obj, summary, mu, edges) -> None:
     if summary.best is None or not len(summary.best):
         _warn(f"no force-closure grasp: nothing drawn to {args.plot}")
         return
-    from .pipeline import BestGrasps
+    from .summary import BestGrasps
 
     best = BestGrasps(*(a[: args.top] for a in (summary.best.index, summary.best.points,
                                                  summary.best.normals, summary.best.quality)))
@@ -477,12 +477,12 @@ def _cmd_score(args) -> int:
 
 
 def _cmd_show(args) -> int:
-    from . import pipeline, storage
+    from . import storage, summary
 
     storage.check_input_path(args.file)
     plot = args.plot if args.plot is not None else args.file.with_suffix(".png")
     _check_plot_path(plot)
-    best, meta = pipeline.best_in_file(args.file, args.top)
+    best, meta = summary.best_in_file(args.file, args.top)
     spec = args.object or meta.get("object")
     if spec is None:
         raise ValueError(f"{str(args.file)!r} names no object: pass --object")

@@ -11,34 +11,27 @@ Sampling of the next chunk runs in a background thread while the current one is 
 
 :func:`score_file` does the same for grasps stored in a file.
 
-Devices
-    On a CPU, XLA makes one device of all cores; :func:`configure_cpu_devices` splits them into
-    one device per core (``XLA_FLAGS=--xla_force_host_platform_device_count``), which about
-    doubles throughput on two cores. It must run before JAX starts its backend (importing JAX is
-    fine; the first computation or ``jax.devices()`` is too late).
+Devices and processes are set up by :mod:`grasp_jax.devices` (one XLA device per CPU core,
+:func:`grasp_jax.devices.initialize_distributed`); the running statistics, the best grasps and the
+printed summary are :mod:`grasp_jax.summary`.
 
 Several hosts
-    With ``distributed=True`` (``grasp-jax sample --distributed``), or when the standard
-    variables ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID`` are set,
-    :func:`initialize_distributed` calls :func:`jax.distributed.initialize` (which also detects
-    SLURM, Open MPI and TPU pods by itself). Every process then samples the same seeded stream of
-    ``num`` grasps, scores only its contiguous slice ``[num * i // P, num * (i + 1) // P)`` for
-    process ``i`` of ``P`` on its own local devices, and writes its own file
-    ``<stem>.<i>-of-<P><suffix>`` with the slice in the metadata. Concatenating the files in
-    process order gives exactly the single-process result. No collective is used, so processes
-    never wait for each other; each prints the summary of its slice. (Tested with two processes
-    on one machine; not on several hosts.)
+    With ``distributed=True`` (``grasp-jax sample --distributed``; call
+    :func:`grasp_jax.devices.initialize_distributed` first), every process samples the same
+    seeded stream of ``num`` grasps, scores only its contiguous slice
+    ``[num * i // P, num * (i + 1) // P)`` for process ``i`` of ``P`` on its own local devices,
+    and writes its own file ``<stem>.<i>-of-<P><suffix>`` with the slice in the metadata.
+    Concatenating the files in process order gives exactly the single-process result. No
+    collective is used, so processes never wait for each other; each prints the summary of its
+    slice. (Tested with two processes on one machine; not on several hosts.)
 """
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
-import json
 import math
 import os
 import queue
-import sys
 import threading
 import time
 import warnings
@@ -47,316 +40,19 @@ from typing import Iterable, Iterator, Mapping
 
 import numpy as np
 
+from .devices import part_path, slice_bounds
+from .summary import DEFAULT_TOP, PERCENTILES, PipelineSummary, _QualityHistogram, _TopK
+
 #: The paper's friction coefficient, tan(20 deg).
 DEFAULT_MU = 0.364
 #: Grasps per pipeline chunk: sampled, scored and written together.
 DEFAULT_CHUNK = 65536
-#: Best grasps kept for the summary (and ``--plot``).
-DEFAULT_TOP = 10
-#: Bins of the Q histogram the percentiles are read from (resolution ``sqrt(1 + mu^2) / BINS``).
-HISTOGRAM_BINS = 1 << 16
 #: Fewest grasps per device in one compiled call (four blocks of ``grasp_jax._batch.BLOCK``).
 MIN_ROWS = 1024
-PERCENTILES = (5, 25, 50, 75, 95)
 #: Ferrari-Canny epsilon (scale free: torques are divided by the torque scale) at or below which
 #: the summary counts a grasp as not force-closure by the baseline; qhull leaves round-off of about
 #: 1e-17 on grasps exactly on the boundary (contacts on parallel faces).
 EPSILON_ZERO = 1e-9
-
-_DEVICE_FLAG = "--xla_force_host_platform_device_count"
-_DISTRIBUTED_ENV = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
-
-
-# ---------------------------------------------------------------------------------------------
-# Devices and processes
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
-def _backend_started() -> bool:
-    if "jax" not in sys.modules:
-        return False
-    try:
-        from jax._src import xla_bridge
-
-        return bool(xla_bridge.backends_are_initialized())
-    except (ImportError, AttributeError):  # private API moved: assume the worst
-        return True
-
-
-def configure_cpu_devices(count: int | None = None) -> int | None:
-    """Split the host CPU into ``count`` XLA devices (default: one per available core).
-
-    Sets ``XLA_FLAGS=--xla_force_host_platform_device_count=<count>`` (keeping other flags) when
-    JAX has not started its backend yet and the flag is not already set. Only the CPU platform
-    reads it; on a GPU machine it is harmless.
-
-    Returns:
-        The device count now requested, or ``None`` when nothing was changed (the backend already
-        runs, or ``XLA_FLAGS`` already chooses a count: the user's setting wins).
-    """
-    count = available_cores() if count is None else int(count)
-    if count < 1:
-        raise ValueError(f"device count must be >= 1; got {count}")
-    flags = os.environ.get("XLA_FLAGS", "")
-    if _DEVICE_FLAG in flags or _backend_started():
-        return None
-    os.environ["XLA_FLAGS"] = f"{flags} {_DEVICE_FLAG}={count}".strip()
-    return count
-
-
-def distributed_requested() -> bool:
-    """Whether the standard JAX multi-process variables are all set."""
-    return all(os.environ.get(k) for k in _DISTRIBUTED_ENV)
-
-
-def initialize_distributed(force: bool = False) -> tuple[int, int]:
-    """Join a multi-process JAX job when asked (``force``) or when its variables are set.
-
-    Calls :func:`jax.distributed.initialize` with ``JAX_COORDINATOR_ADDRESS``,
-    ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID`` when they are set, else with no arguments so that
-    JAX detects the cluster (SLURM, Open MPI, Cloud TPU). Must run before any JAX computation.
-
-    Returns:
-        ``(process_index, process_count)``; ``(0, 1)`` when not distributed.
-    """
-    if not (force or distributed_requested()):
-        return 0, 1
-    import jax
-
-    kwargs = {}
-    if distributed_requested():  # jax reads only the address from the environment itself
-        try:
-            kwargs = dict(coordinator_address=os.environ["JAX_COORDINATOR_ADDRESS"],
-                          num_processes=int(os.environ["JAX_NUM_PROCESSES"]),
-                          process_id=int(os.environ["JAX_PROCESS_ID"]))
-        except ValueError:
-            raise ValueError("JAX_NUM_PROCESSES and JAX_PROCESS_ID must be integers") from None
-    try:
-        jax.distributed.initialize(**kwargs)
-    except (RuntimeError, ValueError) as e:
-        if "already" not in str(e).lower():
-            raise ValueError(f"could not join the distributed JAX job ({e})") from None
-    return jax.process_index(), jax.process_count()
-
-
-def slice_bounds(num: int, index: int, count: int) -> tuple[int, int]:
-    """The contiguous slice ``[start, stop)`` of ``num`` grasps scored by process ``index``."""
-    return num * index // count, num * (index + 1) // count
-
-
-def part_path(path, index: int, count: int) -> Path:
-    """``results.npz`` -> ``results.3-of-8.npz`` for process 3 of 8 (unchanged for one process)."""
-    path = Path(path)
-    if count <= 1:
-        return path
-    return path.with_name(f"{path.stem}.{index}-of-{count}{path.suffix}")
-
-
-# ---------------------------------------------------------------------------------------------
-# Running statistics with flat memory
-
-
-class _QualityHistogram:
-    """Counts of Q on ``[0, upper]`` in :data:`HISTOGRAM_BINS` bins; percentiles by interpolation."""
-
-    def __init__(self, upper: float):
-        self.upper = float(upper)
-        self.counts = np.zeros(HISTOGRAM_BINS, np.int64)
-        self.total = 0
-        self.sum = 0.0
-        self.max = -math.inf
-
-    def add(self, q: np.ndarray) -> None:
-        if q.size == 0:
-            return
-        idx = np.clip((q / self.upper * HISTOGRAM_BINS).astype(np.int64), 0, HISTOGRAM_BINS - 1)
-        self.counts += np.bincount(idx, minlength=HISTOGRAM_BINS)
-        self.total += q.size
-        self.sum += float(q.sum())
-        self.max = max(self.max, float(q.max()))
-
-    def _order_statistic(self, cum: np.ndarray, k: int) -> float:
-        """The ``k``-th smallest value (0-based), values spread evenly inside their bin."""
-        b = min(int(np.searchsorted(cum, k, side="right")), HISTOGRAM_BINS - 1)
-        j = k - (int(cum[b - 1]) if b else 0)
-        return (b + (j + 0.5) / max(int(self.counts[b]), 1)) * self.upper / HISTOGRAM_BINS
-
-    def percentile(self, p: float) -> float:
-        """As ``numpy.percentile`` (linear interpolation between order statistics), to within one
-        bin."""
-        if self.total == 0:
-            return math.nan
-        cum = np.cumsum(self.counts)
-        rank = p / 100 * (self.total - 1)
-        lo = int(math.floor(rank))
-        hi = min(lo + 1, self.total - 1)
-        a, b = self._order_statistic(cum, lo), self._order_statistic(cum, hi)
-        return min(a + (rank - lo) * (b - a), self.max)
-
-
-@dataclasses.dataclass(frozen=True)
-class BestGrasps:
-    """The best force-closure grasps seen, by decreasing Q (ties: lower index first).
-
-    Attributes:
-        index: ``(k,)`` int, position of each grasp in the scored stream (0-based).
-        points, normals: ``(k, n, d)`` float.
-        quality: ``(k,)`` float.
-    """
-
-    index: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray
-    quality: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-
-class _TopK:
-    def __init__(self, k: int):
-        self.k = int(k)
-        self.best: BestGrasps | None = None
-
-    def add(self, offset: int, points, normals, quality, mask) -> None:
-        if self.k <= 0:
-            return
-        cand = np.flatnonzero(mask)
-        if cand.size == 0:
-            return
-        if cand.size > self.k:
-            part = np.argpartition(-quality[cand], self.k - 1)[: self.k]
-            cand = np.sort(cand[part])
-        new = BestGrasps(cand + offset, points[cand], normals[cand], quality[cand])
-        if self.best is not None:
-            new = BestGrasps(*(np.concatenate([a, b]) for a, b in zip(dataclasses.astuple(self.best),
-                                                                       dataclasses.astuple(new))))
-        order = np.lexsort((new.index, -new.quality))[: self.k]
-        self.best = BestGrasps(*(a[order] for a in dataclasses.astuple(new)))
-
-
-@dataclasses.dataclass
-class PipelineSummary:
-    """What a pipeline run found; :meth:`format` prints it, :meth:`to_dict` serializes it.
-
-    Attributes:
-        num: grasps scored (by this process).
-        force_closure: how many are force-closure.
-        unconverged: grasps with an LP that did not converge (counted as not force-closure).
-        quality_percentiles: ``{p: Q}`` among force-closure grasps (from a histogram with
-            resolution ``sqrt(1 + mu^2) / 65536``), NaN when there is none.
-        quality_mean, quality_max: among force-closure grasps (exact).
-        seconds: wall time from the first sample to the closed output file.
-        first_chunk_seconds: of which the first chunk (includes JAX compilation).
-        first_chunk: grasps in the first chunk.
-        epsilon_positive: grasps with Ferrari-Canny epsilon > :data:`EPSILON_ZERO` (``None``
-            without epsilon).
-        epsilon_disagree: grasps where ``epsilon > EPSILON_ZERO`` and ``force_closure`` disagree.
-        epsilon_max: the largest epsilon.
-        agree: with :func:`score_file` on a file with stored verdicts, how many match.
-        best: the best force-closure grasps (indices count from the start of the whole stream, also
-            in a multi-process run).
-        output: the file written, if any.
-        metadata: the run's settings (as stored in the output).
-        devices: devices each chunk was sharded over.
-    """
-
-    num: int
-    force_closure: int
-    unconverged: int
-    quality_percentiles: dict
-    quality_mean: float
-    quality_max: float
-    seconds: float
-    first_chunk_seconds: float
-    first_chunk: int
-    best: BestGrasps | None
-    output: Path | None
-    metadata: dict
-    devices: int
-    epsilon_positive: int | None = None
-    epsilon_disagree: int | None = None
-    epsilon_max: float | None = None
-    agree: int | None = None
-
-    @property
-    def force_closure_rate(self) -> float:
-        return self.force_closure / self.num if self.num else math.nan
-
-    @property
-    def grasps_per_second(self) -> float:
-        """End to end, including sampling, compilation, the baseline and writing."""
-        return self.num / self.seconds if self.seconds > 0 else math.nan
-
-    @property
-    def steady_grasps_per_second(self) -> float | None:
-        """After the first chunk (so without compilation); ``None`` with a single chunk."""
-        rest = self.seconds - self.first_chunk_seconds
-        if self.num <= self.first_chunk or rest <= 0:
-            return None
-        return (self.num - self.first_chunk) / rest
-
-    def to_dict(self) -> dict:
-        d = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("best", "output")}
-        d["quality_percentiles"] = {str(k): v for k, v in self.quality_percentiles.items()}
-        d["output"] = None if self.output is None else str(self.output)
-        d["force_closure_rate"] = self.force_closure_rate
-        d["grasps_per_second"] = self.grasps_per_second
-        d["steady_grasps_per_second"] = self.steady_grasps_per_second
-        if self.best is not None and len(self.best):
-            d["best"] = {"index": self.best.index.tolist(), "quality": self.best.quality.tolist()}
-        return d
-
-    def format(self, best: int = 1) -> str:
-        """The summary as aligned lines; ``best``: how many of the best grasps to list."""
-        m = self.metadata
-        lines = []
-        what = m.get("object_name") or m.get("object") or m.get("source", "grasps")
-        lines.append(
-            f"object         {what} ({m.get('dim', '?')}D), {m.get('fingers', '?')} fingers, "
-            f"mu {m.get('mu')}, {m.get('edges')} cone edges, torque test {m.get('torque_test')}"
-        )
-        if "slice" in m:
-            s = m["slice"]
-            lines.append(f"process        {m['process_index']} of {m['process_count']}: grasps "
-                         f"{s[0]:,} to {s[1]:,} of {s[2]:,}")
-        steady = self.steady_grasps_per_second
-        timing = f"{self.num:,} grasps in {self.seconds:.1f} s: {self.grasps_per_second:,.0f} grasps/s"
-        extra = f"first chunk {self.first_chunk_seconds:.1f} s incl. compile"
-        if steady is not None:
-            extra += f", then {steady:,.0f} grasps/s"
-        lines.append(f"scored         {timing} ({extra}; {self.devices} device{'s' * (self.devices > 1)})")
-        fc = f"{self.force_closure:,} of {self.num:,} ({100 * self.force_closure_rate:.1f}%)"
-        if self.unconverged:
-            fc += f"; {self.unconverged:,} with an unconverged LP, counted as not force-closure"
-        lines.append(f"force-closure  {fc}")
-        if self.agree is not None:
-            lines.append(f"stored verdict {self.agree:,} of {self.num:,} agree")
-        if self.force_closure:
-            pct = "  ".join(f"p{p} {q:.3f}" for p, q in self.quality_percentiles.items())
-            lines.append(f"Q (FC grasps)  {pct}  mean {self.quality_mean:.3f}  max {self.quality_max:.4f}")
-        if self.best is not None and len(self.best):
-            k = max(1, min(int(best), len(self.best)))
-            listed = ", ".join(f"#{int(i)} Q {float(q):.4f}" for i, q in
-                               zip(self.best.index[:k], self.best.quality[:k]))
-            lines.append(f"best grasp{'s' if k > 1 else ' '}    {listed}")
-        if self.epsilon_positive is not None:
-            origin = ", ".join(f"{0.0 if abs(v) < 1e-12 else v:.3g}" for v in m.get("epsilon_origin", ()))
-            lines.append(
-                f"epsilon        > 0 for {self.epsilon_positive:,} grasps ({self.epsilon_disagree:,} disagree "
-                f"with force-closure), max {self.epsilon_max:.4f} (torques about ({origin}) divided by "
-                f"{m.get('epsilon_torque_scale'):.4g})"
-            )
-        if self.output is not None:
-            lines.append(f"output         {self.output}")
-        return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -819,49 +515,12 @@ def score_file(
         chunks.close()
 
 
-def best_in_file(path, top: int = DEFAULT_TOP, chunk: int = DEFAULT_CHUNK) -> tuple[BestGrasps | None, dict]:
-    """The ``top`` best force-closure grasps of a result file (streamed) and its metadata."""
-    from . import storage
-
-    src = storage.ResultFile(path)
-    missing = [c for c in ("quality", "force_closure") if c not in src.fields]
-    if missing:
-        raise ValueError(f"{str(path)!r} has no {' or '.join(repr(m) for m in missing)} column: "
-                         "score it first (grasp-jax score)")
-    keep = _TopK(top)
-    offset = 0
-    for c in src.iter_chunks(("points", "normals", "quality", "force_closure"), chunk):
-        keep.add(offset, c["points"], c["normals"], np.asarray(c["quality"], float),
-                 np.asarray(c["force_closure"], bool))
-        offset += len(c["points"])
-    return keep.best, dict(src.metadata)
-
-
-def summary_json(summary: PipelineSummary) -> str:
-    """The summary as one JSON line."""
-    def default(o):
-        if isinstance(o, (np.integer, np.floating)):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        return str(o)
-
-    return json.dumps(summary.to_dict(), default=default)
-
-
 __all__ = [
-    "DEFAULT_MU",
     "DEFAULT_CHUNK",
-    "BestGrasps",
-    "PipelineSummary",
-    "available_cores",
-    "best_in_file",
-    "configure_cpu_devices",
+    "DEFAULT_MU",
+    "EPSILON_ZERO",
     "default_chunk",
-    "initialize_distributed",
-    "part_path",
     "run",
     "score_file",
     "score_stream",
-    "slice_bounds",
 ]

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 import grasp_jax as gj
+from grasp_jax import devices as devs
 from grasp_jax import pipeline, storage
+from grasp_jax import summary as summaries
 
 REPO = Path(__file__).resolve().parents[1]
 NUM = 2000
@@ -148,10 +150,10 @@ def test_reader_rejects_files_without_grasps(tmp_path):
 
 def test_histogram_percentiles_match_numpy(rng):
     q = rng.beta(2, 5, size=20000) * 1.06
-    hist = pipeline._QualityHistogram(1.07)
+    hist = summaries._QualityHistogram(1.07)
     for part in np.array_split(q, 7):
         hist.add(part)
-    for p in pipeline.PERCENTILES:
+    for p in summaries.PERCENTILES:
         assert abs(hist.percentile(p) - np.percentile(q, p)) < 1e-4
     assert hist.max == q.max()
 
@@ -160,7 +162,7 @@ def test_top_k_is_the_best_in_order(rng):
     q = np.round(rng.random(500), 2)  # ties on purpose
     fc = rng.random(500) < 0.6
     pts = rng.normal(size=(500, 2, 2))
-    keep = pipeline._TopK(7)
+    keep = summaries._TopK(7)
     for start in range(0, 500, 64):
         sl = slice(start, start + 64)
         keep.add(start, pts[sl], pts[sl], q[sl], fc[sl])
@@ -171,10 +173,10 @@ def test_top_k_is_the_best_in_order(rng):
 
 
 def test_slices_and_part_names():
-    bounds = [pipeline.slice_bounds(10, i, 3) for i in range(3)]
+    bounds = [devs.slice_bounds(10, i, 3) for i in range(3)]
     assert bounds == [(0, 3), (3, 6), (6, 10)]
-    assert pipeline.part_path("a/r.npz", 1, 3) == Path("a/r.1-of-3.npz")
-    assert pipeline.part_path("r.npz", 0, 1) == Path("r.npz")
+    assert devs.part_path("a/r.npz", 1, 3) == Path("a/r.1-of-3.npz")
+    assert devs.part_path("r.npz", 0, 1) == Path("r.npz")
     chunks = [(np.arange(k, k + 4), np.arange(k, k + 4)) for k in range(0, 12, 4)]
     got = list(pipeline._slice_chunks(iter(chunks), 3, 9))
     np.testing.assert_array_equal(np.concatenate([c["points"] for c in got]), np.arange(3, 9))
@@ -184,7 +186,7 @@ def test_slices_and_part_names():
 
 def test_configure_cpu_devices_in_a_fresh_process(tmp_path_factory):
     code = (
-        "import grasp_jax.pipeline as p, jax; print(p.configure_cpu_devices(3)); "
+        "import grasp_jax.devices as p, jax; print(p.configure_cpu_devices(3)); "
         "print(len(jax.devices())); print(p.configure_cpu_devices(2))"
     )
     env = _subprocess_env(tmp_path_factory)
@@ -289,7 +291,7 @@ def test_process_slices_concatenate_to_the_whole(glass, reference_run, tmp_path,
         summary = pipeline.run(glass, NUM, 4, seed=3, chunk=CHUNK, out=tmp_path / "p.npz", distributed=True)
         assert summary.output == tmp_path / f"p.{i}-of-3.npz"
         got, meta = storage.read_results(summary.output)
-        assert meta["slice"] == [*pipeline.slice_bounds(NUM, i, 3), NUM]
+        assert meta["slice"] == [*devs.slice_bounds(NUM, i, 3), NUM]
         parts.append(got)
     for name in FIELDS:
         np.testing.assert_array_equal(np.concatenate([p[name] for p in parts]), arrays[name])
@@ -304,7 +306,7 @@ def test_score_file_round_trip(reference_run, tmp_path):
     np.testing.assert_array_equal(got["force_closure"], arrays["force_closure"])
     np.testing.assert_array_equal(got["quality"], arrays["quality"])
     assert meta["source"] == str(Path(summary.output).resolve()) and meta["object"] == "glass"
-    best, meta = pipeline.best_in_file(out, top=3)
+    best, meta = summaries.best_in_file(out, top=3)
     np.testing.assert_array_equal(best.index, summary.best.index[:3])
 
 
