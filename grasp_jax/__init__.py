@@ -6,24 +6,25 @@ force-closure test of Proposition 2 posed as linear programs, and the quality Q 
 the Ferrari-Canny epsilon as baseline.
 
 Conventions: ``points`` and ``normals`` are ``(..., n, d)`` arrays, ``d`` in {2, 3}, normals
-**outward**, the reference contact ``c_1`` is index 0. Importing grasp_jax turns on JAX's 64-bit
-mode (``jax_enable_x64``): results are float64 unless the inputs are float32.
+**outward**, the reference contact ``c_1`` is index 0. Importing grasp_jax changes no JAX
+configuration. Concrete float64 inputs are computed in float64 (scoped to the call), float32 inputs
+in float32, traced inputs in the tracers' dtype: the rules are in ``grasp_jax._precision``.
 """
 
-import jax as _jax
-
-_jax.config.update("jax_enable_x64", True)
-
-from ._api import evaluate as evaluate  # noqa: E402
-from ._api import force_closure as force_closure  # noqa: E402
-from ._api import min_weight as min_weight  # noqa: E402
-from ._api import quality as quality  # noqa: E402
-from ._baseline import ferrari_canny as ferrari_canny  # noqa: E402
-from ._cones import cone_edges as _cone_edges  # noqa: E402,F401
-from ._lp import Status as Status  # noqa: E402
-from ._result import GraspEvaluation as GraspEvaluation  # noqa: E402
-from ._wrench import CentralAxis as CentralAxis  # noqa: E402
-from ._wrench import central_axis as central_axis  # noqa: E402
+from ._api import evaluate as evaluate
+from ._api import force_closure as force_closure
+from ._api import min_weight as min_weight
+from ._api import quality as quality
+from ._baseline import ferrari_canny as ferrari_canny
+from ._cones import cone_edges as _cone_edges  # noqa: F401
+from ._lp import Status as Status
+from ._objectives import OBJECTIVES as OBJECTIVES
+from ._optimize import EndReason as EndReason
+from ._optimize import OptimizeResult as OptimizeResult
+from ._optimize import optimize as optimize
+from ._result import GraspEvaluation as GraspEvaluation
+from ._wrench import CentralAxis as CentralAxis
+from ._wrench import central_axis as central_axis
 
 __version__ = "0.1.0"
 
@@ -37,4 +38,8 @@ __all__ = [
     "CentralAxis",
     "GraspEvaluation",
     "Status",
+    "optimize",
+    "OptimizeResult",
+    "EndReason",
+    "OBJECTIVES",
 ]

@@ -16,6 +16,7 @@ from . import _closure
 from ._batch import Retry, map_grasps
 from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations
 from ._lp import Status
+from ._precision import scope_for
 from ._result import GraspEvaluation
 from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
 
@@ -23,10 +24,20 @@ _TORQUE_TESTS = ("exact", "paper")
 
 
 def _check_common(points, normals, mu, num_edges, tangents):
+    """Validated inputs and the precision context the call runs in (see ``_precision``)."""
     points, normals, tangents, batch = check_grasps(points, normals, tangents)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
-    return points, normals, tangents, batch, jnp.asarray(mu, points.dtype), num_edges
+    if is_traced(mu):
+        points, normals, tangents = _as_traced(points, normals, tangents)
+    scope = scope_for(points.dtype, is_traced(points, normals, tangents, mu))
+    return points, normals, tangents, batch, mu, num_edges, scope
+
+
+def _as_traced(*arrays):
+    """Concrete grasp arrays of a call whose other arguments are traced: as JAX arrays of the
+    caller's precision (rule 1 of ``_precision``)."""
+    return tuple(None if a is None else jnp.asarray(a) for a in arrays)
 
 
 def _warn_unconverged(status, what: str):
@@ -79,17 +90,18 @@ def evaluate(
     """
     if torque_test not in _TORQUE_TESTS:
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
-    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
     bind = functools.partial(_bind, _evaluate_single, num_edges=num_edges, torque_test=torque_test)
     fn, retry = bind(iterations=iterations), None
     if iterations is None:
         # A fast pass with a short budget, then the full budget for the few it leaves unfinished.
-        fast = first_pass_iterations(_lp_columns(points.shape[-2], points.shape[-1], num_edges))
+        fast = first_pass_iterations(
+            _lp_columns(points.shape[-2], points.shape[-1], num_edges), points.dtype
+        )
         fn, retry = bind(iterations=fast), Retry(fn, _unfinished)
-    result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress, retry=retry)
-    if points.dtype == np.float32 and not is_traced(points, normals, tangents, mu):
-        full = fn if retry is None else retry.fn
-        result = _resolve_in_float64(result, full, points, normals, tangents, mu)
+    with scope:
+        mu = jnp.asarray(mu, points.dtype)
+        result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress, retry=retry)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
@@ -102,18 +114,6 @@ def _lp_columns(n: int, d: int, num_edges: int) -> int:
 
 def _unfinished(result: GraspEvaluation) -> jax.Array:
     return (result.quality_status == Status.NOT_CONVERGED) | (result.torque_status == Status.NOT_CONVERGED)
-
-
-def _resolve_in_float64(result: GraspEvaluation, fn, points, normals, tangents, mu) -> GraspEvaluation:
-    """Re-solve in float64 the grasps whose float32 LPs did not converge (about 1% of random
-    grasps: float32 cannot resolve the ill-conditioned last iterations), cast back to float32."""
-    bad = ~np.asarray(result.converged)
-    if not bad.any():
-        return result
-    sub = (points[bad], normals[bad], None if tangents is None else tangents[bad])
-    sub = tuple(None if a is None else jnp.asarray(a, jnp.float64) for a in sub)
-    redo = map_grasps(fn, sub, jnp.asarray(mu, jnp.float64), (int(bad.sum()),))
-    return jax.tree_util.tree_map(lambda a, b: a.at[bad].set(b.astype(a.dtype)), result, redo)
 
 
 def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, torque_test: str = "exact", tangents=None):
@@ -151,9 +151,10 @@ def quality(
     Returns:
         ``(...)`` float: Q, ``0`` where the grasp is not in equilibrium (unless ``signed``).
     """
-    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
     fn = _bind(_quality_single, num_edges=num_edges, signed=signed, iterations=iterations)
-    return map_grasps(fn, (points, normals, tangents), mu, batch)
+    with scope:
+        return map_grasps(fn, (points, normals, tangents), jnp.asarray(mu, points.dtype), batch)
 
 
 def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations):
@@ -189,16 +190,21 @@ def min_weight(
         ``(...)`` float ``l*``: 0 where the wrenches do not span the wrench space, ``-inf`` where
         no affine combination of them vanishes (LP infeasible).
     """
-    points, normals, tangents, batch, mu, num_edges = _check_common(points, normals, mu, num_edges, tangents)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
     d = points.shape[-1]
-    origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
-    if origin.shape != (d,):
+    if origin is not None and not is_traced(origin):
+        origin = np.asarray(origin, points.dtype)
+    if origin is not None and origin.shape != (d,):
         raise ValueError(f"origin must have shape ({d},); got {origin.shape}")
     torque_scale = check_scalar("torque_scale", torque_scale)
+    if is_traced(origin, torque_scale) and not is_traced(points):
+        points, normals, tangents = _as_traced(points, normals, tangents)
+        scope = scope_for(points.dtype, traced=True)
     fn = _bind(_min_weight_single, num_edges=num_edges, iterations=iterations)
-    margin, status = map_grasps(
-        fn, (points, normals, tangents), (mu, origin, jnp.asarray(torque_scale, points.dtype)), batch
-    )
+    with scope:
+        origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
+        shared = (jnp.asarray(mu, points.dtype), origin, jnp.asarray(torque_scale, points.dtype))
+        margin, status = map_grasps(fn, (points, normals, tangents), shared, batch)
     _warn_unconverged(status, "min-weight LPs")
     return margin
 

@@ -21,7 +21,7 @@ def default_iterations(num_vars: int) -> int:
     return 30 if num_vars <= 64 else 40
 
 
-def first_pass_iterations(num_vars: int) -> int:
+def first_pass_iterations(num_vars: int, dtype=np.float64) -> int:
     """Budget of the fast first pass of a chunk (``_batch.Retry``): most problems converge in
     it; the rest are solved again with :func:`default_iterations`.
 

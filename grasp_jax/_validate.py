@@ -7,8 +7,9 @@ import math
 import numbers
 
 import jax
-import jax.numpy as jnp
 import numpy as np
+
+from ._precision import working_dtype
 
 
 def is_traced(*xs) -> bool:
@@ -28,8 +29,6 @@ def _as_float_array(name: str, x):
             np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
         ):
             raise ValueError(f"{name} must be an array of real numbers; got dtype {arr.dtype}")
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(np.float64)
     return arr
 
 
@@ -62,8 +61,9 @@ def check_grasps(points, normals, tangents=None):
         tangents: optional ``(..., n, 3)`` first tangent directions (3D only).
 
     Returns:
-        ``(points, normals, tangents, batch_shape)`` as float arrays of one dtype (float64 unless
-        both inputs are float32).
+        ``(points, normals, tangents, batch_shape)`` as float arrays of one dtype, chosen by the
+        rules of :mod:`grasp_jax._precision` (:func:`~grasp_jax._precision.working_dtype`):
+        NumPy arrays on the concrete path, tracers under a transformation.
     """
     points = _as_float_array("points", points)
     normals = _as_float_array("normals", normals)
@@ -78,14 +78,15 @@ def check_grasps(points, normals, tangents=None):
         raise ValueError(f"points must have d = 2 or 3 coordinates in the last axis; got d = {d}")
     if n < 2:
         raise ValueError(f"a grasp needs at least 2 contacts; points has n = {n} (shape {points.shape})")
-    dtype = jnp.result_type(points.dtype, normals.dtype)
     if tangents is not None:
         if d != 3:
             raise ValueError("tangents are only meaningful in 3D; got 2D points")
         tangents = _as_float_array("tangents", tangents)
         if tangents.shape != points.shape:
             raise ValueError(f"tangents must have shape {points.shape}; got {tangents.shape}")
-    if not is_traced(points, normals, tangents):
+    traced = is_traced(points, normals, tangents)
+    dtype = working_dtype(points.dtype, normals.dtype, None if tangents is None else tangents.dtype, traced=traced)
+    if not traced:
         for name, arr in (("points", points), ("normals", normals), ("tangents", tangents)):
             if arr is not None and not np.all(np.isfinite(arr)):
                 bad = np.argwhere(~np.isfinite(arr))[0][:-1]

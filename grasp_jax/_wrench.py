@@ -10,8 +10,11 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._constants import tolerances
+from ._precision import scope_for, working_dtype
+from ._validate import is_traced
 
 
 def cross(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -88,13 +91,24 @@ def central_axis(wrench) -> CentralAxis:
         :class:`CentralAxis` with the leading shape of ``wrench``. Finite values and gradients
         everywhere except the documented infinite pitch of a pure torque.
     """
-    wrench = jnp.asarray(wrench)
+    traced = is_traced(wrench)
+    if not traced:
+        wrench = np.asarray(wrench)
+        if wrench.dtype == object or not (
+            np.issubdtype(wrench.dtype, np.floating) or np.issubdtype(wrench.dtype, np.integer)
+            or wrench.dtype == bool
+        ):
+            raise ValueError(f"wrench must be an array of real numbers; got dtype {wrench.dtype}")
     if wrench.ndim == 0 or wrench.shape[-1] not in (3, 6):
         raise ValueError(
             f"wrench must have shape (..., 6) in 3D or (..., 3) in 2D; got {wrench.shape}"
         )
-    if not jnp.issubdtype(wrench.dtype, jnp.floating):
-        wrench = wrench.astype(jnp.result_type(float))
+    dtype = working_dtype(wrench.dtype, traced=traced)
+    with scope_for(dtype, traced):
+        return _central_axis(jnp.asarray(wrench, dtype) if not traced else wrench.astype(dtype))
+
+
+def _central_axis(wrench: jax.Array) -> CentralAxis:
     d = 2 if wrench.shape[-1] == 3 else 3
     f, tau = wrench[..., :d], wrench[..., d:]
     tol = tolerances(wrench.dtype)

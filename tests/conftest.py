@@ -1,7 +1,10 @@
 """Shared fixtures of the grasp_jax test suite.
 
-Importing grasp_jax turns on JAX's 64-bit mode; it is imported here first so that every test
-module runs in float64 unless it asks for float32.
+Importing grasp_jax changes no JAX configuration (checked here, on every run, and in a fresh
+process by ``test_dtypes.py``). The suite itself then turns on JAX's 64-bit mode, as lineax's does,
+so that its comparisons with the float64 references (HiGHS, qhull, finite differences) run in
+float64 under ``jit`` and ``grad`` too; ``test_dtypes.py`` checks float32 programs in
+subprocesses without it.
 """
 
 from __future__ import annotations
@@ -14,9 +17,18 @@ import jax
 import numpy as np
 import pytest
 
-import grasp_jax  # noqa: F401  (enables jax_enable_x64)
+_CONFIG_BEFORE = dict(jax.config.values)
+import grasp_jax  # noqa: E402,F401
 
-assert jax.config.jax_enable_x64, "importing grasp_jax must enable 64-bit mode"
+#: Configuration entries that importing grasp_jax changed (must be none).
+IMPORT_CHANGED_CONFIG = {
+    key: (_CONFIG_BEFORE.get(key), value)
+    for key, value in jax.config.values.items()
+    if _CONFIG_BEFORE.get(key, object()) != value
+}
+assert not IMPORT_CHANGED_CONFIG, f"importing grasp_jax changed JAX's configuration: {IMPORT_CHANGED_CONFIG}"
+
+jax.config.update("jax_enable_x64", True)  # the suite's float64 references; see the docstring
 
 #: ``<repo root>/../shared/data``: the real meshes and polygons shared by the project.
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

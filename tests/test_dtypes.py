@@ -1,0 +1,158 @@
+"""The dtype rules of ``grasp_jax._precision``: no global configuration, float64 scoped to the call,
+float32 in float32, traced inputs in the caller's dtype.
+
+The suite runs with x64 on (``conftest.py``), so a float32 program is checked in a fresh
+subprocess, where nothing has turned it on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grasp_jax as gj
+from grasp_jax import _precision
+
+from _grasps import MU, grasps, sample_sphere
+
+_FLOAT32_PROGRAM = textwrap.dedent(
+    r"""
+    import contextlib, json, sys, warnings
+    warnings.simplefilter("error")
+    import jax, jax.numpy as jnp, numpy as np
+
+    out = {}
+    before = dict(jax.config.values)
+    f32 = jax.jit(lambda x: jnp.sin(x) * 2.0)
+    out["before"] = [str(jnp.ones(3).dtype), str(f32(np.ones(3)).dtype)]
+
+    import grasp_jax as gj
+    out["changed_by_import"] = sorted(k for k, v in jax.config.values.items() if before.get(k) != v)
+
+    # Small 2D grasps on a circle and one-pass budgets: the cheapest programs to compile.
+    t = np.random.default_rng(0).uniform(0, 2 * np.pi, size=(40, 3))
+    p = np.stack([np.cos(t), np.sin(t)], axis=-1)
+    r64 = gj.evaluate(p, p, mu=0.364, iterations=30)
+    r32 = gj.evaluate(p.astype(np.float32), p.astype(np.float32), mu=0.364, iterations=30)
+    out["evaluate"] = [str(r64.quality.dtype), str(r32.quality.dtype), str(r64.certificate.dtype)]
+    out["fc_equal"] = bool(np.array_equal(np.asarray(r64.force_closure), np.asarray(r32.force_closure)))
+    out["quality"] = str(gj.quality(p, p, mu=0.364).dtype)
+    out["min_weight"] = str(gj.min_weight(p, p, mu=0.364).dtype)
+    out["central_axis"] = str(gj.central_axis(np.ones(3)).pitch.dtype)
+    # Under the caller's jit the library computes in the caller's (float32) dtype.
+    out["traced"] = str(jax.jit(lambda x: gj.quality(x, x, mu=0.364))(p[:3]).dtype)
+    out["grad"] = str(jax.grad(lambda x: gj.quality(x, p[0], mu=0.364))(p[0]).dtype)
+
+    out["changed_by_calls"] = sorted(k for k, v in jax.config.values.items() if before.get(k) != v)
+    out["after"] = [str(jnp.ones(3).dtype), str(f32(np.ones(3)).dtype), str(jnp.asarray(np.ones(2)).dtype)]
+
+    # float64 asked for and not to be had: one clear error.
+    jax.enable_x64 = lambda value=True: contextlib.nullcontext()
+    try:
+        gj.evaluate(p, p, mu=0.364, iterations=30)
+        out["unavailable"] = None
+    except TypeError as exc:
+        out["unavailable"] = [type(exc).__name__, str(exc)]
+    print("RESULT" + json.dumps(out))
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def float32_program():
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    env["JAX_PLATFORMS"] = "cpu"
+    proc = subprocess.run(
+        [sys.executable, "-c", _FLOAT32_PROGRAM], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT")][-1]
+    return json.loads(line[len("RESULT"):])
+
+
+def test_import_changes_no_configuration(float32_program):
+    assert float32_program["before"] == ["float32", "float32"]
+    assert float32_program["changed_by_import"] == []
+
+
+def test_float32_program_stays_float32(float32_program):
+    assert float32_program["changed_by_calls"] == []
+    assert float32_program["after"] == ["float32", "float32", "float32"]
+
+
+def test_concrete_float64_is_scoped_float64(float32_program):
+    assert float32_program["evaluate"] == ["float64", "float32", "float64"]
+    assert float32_program["fc_equal"]
+    for name in ("quality", "min_weight", "central_axis"):
+        assert float32_program[name] == "float64", name
+
+
+def test_traced_inputs_keep_the_callers_dtype(float32_program):
+    assert float32_program["traced"] == "float32"
+    assert float32_program["grad"] == "float32"
+
+
+def test_float64_unavailable_is_one_clear_error(float32_program):
+    name, message = float32_program["unavailable"]
+    assert name == "Float64Unavailable"
+    assert "float64" in message and "float32" in message
+
+
+# ---------------------------------------------------------------------------------------------
+# In this process (x64 on): the promotion rules.
+
+
+def _grasps3(count=8, seed=0):
+    return grasps(sample_sphere, count, 4, np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize(
+    "dtypes, expected",
+    [
+        ((np.float64, np.float64), np.float64),
+        ((np.float32, np.float32), np.float32),
+        ((np.float32, np.float64), np.float64),
+        ((np.int64, np.float32), np.float64),
+        ((np.float16, np.float16), np.float32),
+    ],
+)
+def test_working_dtype(dtypes, expected):
+    assert _precision.working_dtype(*dtypes, traced=False) == expected
+
+
+def test_result_dtypes_follow_the_inputs():
+    p, n = _grasps3()
+    for dt, expected in ((np.float64, jnp.float64), (np.float32, jnp.float32), (np.float16, jnp.float32)):
+        ev = gj.evaluate(p.astype(dt), n.astype(dt), mu=MU)
+        for name in ("quality", "delta", "torque_margin", "certificate"):
+            assert getattr(ev, name).dtype == expected, (dt, name)
+        assert ev.force_closure.dtype == bool and ev.quality_status.dtype == jnp.int8
+    assert gj.evaluate(np.round(p * 4), n, mu=MU).quality.dtype == jnp.float64  # integer points
+
+
+def test_scope_is_left_after_the_call():
+    p, n = _grasps3()
+    with jax.enable_x64(False):
+        ev = gj.evaluate(p, n, mu=MU)
+        assert ev.quality.dtype == np.float64
+        assert not jax.config.jax_enable_x64
+        assert jnp.ones(2).dtype == jnp.float32
+    assert jax.config.jax_enable_x64
+
+
+def test_float64_scope_nests():
+    with jax.enable_x64(False):
+        with _precision.float64_scope():
+            assert jnp.ones(2).dtype == jnp.float64
+            with _precision.float64_scope():
+                assert jnp.ones(2).dtype == jnp.float64
+            assert jnp.ones(2).dtype == jnp.float64
+        assert jnp.ones(2).dtype == jnp.float32
