@@ -6,6 +6,10 @@ A result file holds one row per grasp:
 * ``force_closure`` ``(N,)`` bool and ``quality`` ``(N,)`` float (the paper's Q);
 * ``converged`` ``(N,)`` bool (every LP of the grasp ended optimal or certified);
 * ``epsilon``, ``volume`` ``(N,)`` float when the qhull baseline was asked for;
+* from ``grasp-jax optimize`` (one row per start): ``initial_points`` ``(N, n, d)`` float,
+  ``objective`` ``(N,)`` float (the best objective reached), ``reason`` ``(N,)`` int8
+  (:class:`grasp_jax.EndReason`), ``history`` and ``quality_history`` ``(N, steps)`` float (the
+  objective and Q at each step);
 
 plus a metadata dictionary (object, mu, edges, fingers, seed, scheme, num, torque_test,
 grasp_jax version, date, ...).
@@ -13,7 +17,8 @@ grasp_jax version, date, ...).
 * ``.npz``: one ``.npy`` array per field (uncompressed, readable with ``numpy.load``) and the
   metadata as a 0-d string array ``metadata`` holding JSON: ``json.loads(str(f["metadata"]))``.
 * ``.parquet``: one row per grasp; ``points`` and ``normals`` are ``fixed_size_list`` (fingers) of
-  ``fixed_size_list`` (d) of double; the metadata is JSON under the key ``grasp_jax`` of the
+  ``fixed_size_list`` (d) of double, ``history`` and ``quality_history`` ``fixed_size_list``
+  (steps) of double; the metadata is JSON under the key ``grasp_jax`` of the
   schema metadata.
 
 Writers take the grasps chunk by chunk with flat memory (``.npz``: each field is appended to a
@@ -46,6 +51,15 @@ SCALAR_FIELDS = {
     "converged": np.dtype(bool),
     "epsilon": np.dtype(np.float64),
     "volume": np.dtype(np.float64),
+    "objective": np.dtype(np.float64),
+    "reason": np.dtype(np.int8),
+}
+#: Per-grasp fields of shape ``(fingers, d)``.
+POINT_FIELDS = ("points", "normals", "initial_points")
+#: Per-grasp fields with one value per optimizer step, shape ``(steps,)``.
+SERIES_FIELDS = {
+    "history": np.dtype(np.float64),
+    "quality_history": np.dtype(np.float64),
 }
 _COPY = 1 << 24  # bytes per copy step when assembling an archive
 
@@ -115,16 +129,21 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def _field_dtypes(fields) -> dict[str, np.dtype]:
-    out = {}
+def _field_layout(fields, fingers: int, dim: int, steps: int | None) -> tuple[dict, dict]:
+    """``(dtypes, row shapes)`` of the named fields."""
+    dtypes, shapes = {}, {}
     for name in fields:
-        if name in ("points", "normals"):
-            out[name] = np.dtype(np.float64)
+        if name in POINT_FIELDS:
+            dtypes[name], shapes[name] = np.dtype(np.float64), (fingers, dim)
         elif name in SCALAR_FIELDS:
-            out[name] = SCALAR_FIELDS[name]
+            dtypes[name], shapes[name] = SCALAR_FIELDS[name], ()
+        elif name in SERIES_FIELDS:
+            if steps is None or steps < 1:
+                raise ValueError(f"result field {name!r} needs the number of steps")
+            dtypes[name], shapes[name] = SERIES_FIELDS[name], (int(steps),)
         else:
             raise ValueError(f"unknown result field {name!r}")
-    return out
+    return dtypes, shapes
 
 
 class ResultWriter:
@@ -134,12 +153,12 @@ class ResultWriter:
     exception (including ``KeyboardInterrupt``) removes every temporary file and publishes nothing.
     """
 
-    def __init__(self, path, metadata: Mapping, fields, fingers: int, dim: int):
+    def __init__(self, path, metadata: Mapping, fields, fingers: int, dim: int, steps: int | None = None):
         self.path = check_output_path(path)
         self.directory = self.path.parent if str(self.path.parent) else Path(".")
         self.metadata = dict(metadata)
-        self.dtypes = _field_dtypes(fields)
         self.fingers, self.dim = int(fingers), int(dim)
+        self.dtypes, self.shapes = _field_layout(fields, self.fingers, self.dim, steps)
         self.count = 0
         self._done = False
 
@@ -151,7 +170,7 @@ class ResultWriter:
         rows = None
         for name, dtype in self.dtypes.items():
             a = np.ascontiguousarray(np.asarray(batch[name]), dtype=dtype)
-            want = (self.fingers, self.dim) if name in ("points", "normals") else ()
+            want = self.shapes[name]
             if a.shape[1:] != want or (rows is not None and len(a) != rows):
                 raise ValueError(f"result field {name!r} has shape {a.shape}; expected (rows,) + {want}")
             rows = len(a)
@@ -213,8 +232,8 @@ class ResultWriter:
 class NpzWriter(ResultWriter):
     """Streams each field to a scratch file; :meth:`close` assembles an uncompressed ``.npz``."""
 
-    def __init__(self, path, metadata, fields, fingers, dim):
-        super().__init__(path, metadata, fields, fingers, dim)
+    def __init__(self, path, metadata, fields, fingers, dim, steps=None):
+        super().__init__(path, metadata, fields, fingers, dim, steps)
         try:
             self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.",
                                                   suffix=".tmp"))
@@ -234,7 +253,7 @@ class NpzWriter(ResultWriter):
         with os.fdopen(fd, "wb") as raw:
             with zipfile.ZipFile(raw, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
                 for name, dtype in self.dtypes.items():
-                    shape = (self.count,) + ((self.fingers, self.dim) if name in ("points", "normals") else ())
+                    shape = (self.count,) + self.shapes[name]
                     with zf.open(f"{name}.npy", "w", force_zip64=True) as entry:
                         header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
                                   "shape": shape}
@@ -267,19 +286,33 @@ def _nested_list_type(fingers: int, dim: int):
     return pa.list_(pa.list_(pa.float64(), dim), fingers)
 
 
+def _fixed_row_shape(typ) -> tuple[int, ...]:
+    """The row shape of a (nested) ``fixed_size_list`` Arrow type; ``()`` for anything else."""
+    import pyarrow as pa
+
+    shape = []
+    while pa.types.is_fixed_size_list(typ):
+        shape.append(typ.list_size)
+        typ = typ.value_type
+    return tuple(shape)
+
+
 class ParquetWriter(ResultWriter):
     """One row group per chunk, written to a temporary file that :meth:`close` renames."""
 
-    def __init__(self, path, metadata, fields, fingers, dim):
+    def __init__(self, path, metadata, fields, fingers, dim, steps=None):
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        super().__init__(path, metadata, fields, fingers, dim)
+        super().__init__(path, metadata, fields, fingers, dim, steps)
         self._pa = pa
         columns = []
         for name, dtype in self.dtypes.items():
-            if name in ("points", "normals"):
+            if name in POINT_FIELDS:
                 columns.append(pa.field(name, _nested_list_type(self.fingers, self.dim), nullable=False))
+            elif self.shapes[name]:
+                columns.append(pa.field(name, pa.list_(pa.from_numpy_dtype(dtype), self.shapes[name][0]),
+                                        nullable=False))
             else:
                 columns.append(pa.field(name, pa.from_numpy_dtype(dtype), nullable=False))
         self.schema = pa.schema(columns, metadata={PARQUET_KEY: json.dumps(self.metadata).encode()})
@@ -292,9 +325,11 @@ class ParquetWriter(ResultWriter):
         cols = []
         for name in self.dtypes:
             a = arrays[name]
-            if name in ("points", "normals"):
+            if name in POINT_FIELDS:
                 inner = pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), self.dim)
                 cols.append(pa.FixedSizeListArray.from_arrays(inner, self.fingers))
+            elif self.shapes[name]:
+                cols.append(pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), self.shapes[name][0]))
             else:
                 cols.append(pa.array(a))
         self._writer.write_batch(pa.RecordBatch.from_arrays(cols, schema=self.schema))
@@ -324,7 +359,8 @@ class ParquetWriter(ResultWriter):
             self._tmp = None
 
 
-def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int) -> ResultWriter:
+def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int,
+                steps: int | None = None) -> ResultWriter:
     """A streaming, atomic writer chosen by the suffix of ``path`` (``.npz`` or ``.parquet``).
 
     Args:
@@ -333,13 +369,14 @@ def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int) -> R
         fields: names of the per-grasp fields to store, e.g. ``("points", "normals",
             "force_closure", "quality")``.
         fingers, dim: the contacts per grasp and the dimension (2 or 3).
+        steps: the length of the per-step fields (:data:`SERIES_FIELDS`), if any are stored.
 
     Raises:
         ValueError: unknown suffix, missing directory, unknown field.
     """
     path = check_output_path(path)
     cls = NpzWriter if path.suffix.lower() == ".npz" else ParquetWriter
-    return cls(path, metadata, tuple(fields), fingers, dim)
+    return cls(path, metadata, tuple(fields), fingers, dim, steps)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -486,7 +523,7 @@ class ResultFile:
                     first = self._first_row_shape(name)
                 self.fields[name] = (num,) + first
             else:
-                self.fields[name] = (num,)
+                self.fields[name] = (num,) + _fixed_row_shape(schema.field(name).type)
 
     def _first_row_shape(self, name):
         import pyarrow as pa
@@ -505,12 +542,15 @@ class ResultFile:
             out = {}
             for c in columns:
                 col = batch.column(c)
-                if c in ("points", "normals"):
-                    flat = col.flatten().flatten().to_numpy(zero_copy_only=False)
-                    if flat.size != len(col) * self.fingers * self.dim:
-                        raise ValueError(f"{str(self.path)!r}: rows of {c!r} do not all have shape "
-                                         f"({self.fingers}, {self.dim})")
-                    out[c] = flat.reshape(len(col), self.fingers, self.dim)
+                shape = self.fields[c][1:]
+                if shape:
+                    flat = col
+                    for _ in shape:
+                        flat = flat.flatten()
+                    flat = flat.to_numpy(zero_copy_only=False)
+                    if flat.size != len(col) * int(np.prod(shape)):
+                        raise ValueError(f"{str(self.path)!r}: rows of {c!r} do not all have shape {shape}")
+                    out[c] = flat.reshape((len(col),) + shape)
                 else:
                     out[c] = col.to_numpy(zero_copy_only=False)
             yield out

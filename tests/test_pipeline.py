@@ -122,6 +122,26 @@ def test_writer_replaces_existing_file_only_at_the_end(tmp_path, rng):
     assert os.listdir(tmp_path) == ["r.npz"]
 
 
+
+@pytest.mark.parametrize("suffix", [".npz", ".parquet"])
+def test_storage_optimizer_fields(tmp_path, rng, suffix):
+    """The per-start fields of grasp-jax optimize: start points, end reasons, per-step series."""
+    path = tmp_path / f"o{suffix}"
+    fields = FIELDS + ("initial_points", "objective", "reason", "history", "quality_history")
+    rows = _fake_rows(rng, 5, fingers=3, dim=2)
+    rows.update(initial_points=rng.normal(size=(5, 3, 2)), objective=rng.random(5),
+                reason=np.array([0, 1, 2, 0, 1], np.int8), history=rng.random((5, 7)),
+                quality_history=rng.random((5, 7)))
+    with storage.open_writer(path, {}, fields, fingers=3, dim=2, steps=7) as w:
+        w.write(rows)
+    arrays, _ = storage.read_results(path)
+    for name in fields:
+        np.testing.assert_array_equal(arrays[name], rows[name])
+        assert arrays[name].dtype == rows[name].dtype
+    assert [len(c["history"]) for c in storage.ResultFile(path).iter_chunks(("history",), 2)] == [2, 2, 1]
+    with pytest.raises(ValueError, match="number of steps"):
+        storage.open_writer(tmp_path / f"p{suffix}", {}, fields, fingers=3, dim=2)
+
 @pytest.mark.parametrize(
     "name, message",
     [("r.csv", "must end in"), ("missing/r.npz", "does not exist"), ("r", "must end in")],
