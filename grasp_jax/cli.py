@@ -27,6 +27,9 @@ Force-closure and the quality Q of multi-finger grasps via central axes (Bounab,
 Zaatri), batched in JAX. Sample random grasps of an object and score them by the million with
 flat memory, score grasps stored in a file, or draw the best ones.
 
+Optimize grasps by gradient, moving their contacts over the object's surface (from random starts,
+or from the best grasps of a sampled file).
+
 With no arguments, runs the demo: 100,000 random 4-finger grasps of the built-in glass."""
 
 _EXAMPLES = """\
@@ -38,6 +41,8 @@ examples:
   grasp-jax sample wrench.csv --hole wrench_hole.csv --fingers 3 --out wrench.npz
   grasp-jax score glass.parquet --mu 0.2 --out glass_mu02.npz
   grasp-jax show glass.parquet --top 6
+  grasp-jax optimize glass --fingers 4 --starts 1024 --steps 200 --out opt.npz --plot opt.png
+  grasp-jax sample glass --num 100000 --out s.npz && grasp-jax optimize --from s.npz --starts 256
 """
 
 _NOTES = (
@@ -189,12 +194,69 @@ def _add_hole(p: argparse.ArgumentParser, *, from_file: bool = False) -> None:
                         + (" (default: the file's metadata)" if from_file else ""))
 
 
-def _add_plot(p: argparse.ArgumentParser, default_help: str | None = None) -> None:
+def _add_plot(p: argparse.ArgumentParser, default_help: str | None = None,
+              help_text: str = "draw the best force-closure grasps on the object") -> None:
     g = p.add_argument_group("figure")
     g.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
-                   help="draw the best force-closure grasps on the object" + (f" ({default_help})" if default_help else ""))
+                   help=help_text + (f" ({default_help})" if default_help else ""))
     g.add_argument("--top", type=_int(1, "an integer >= 1"), default=4, metavar="K",
                    help="how many of the best grasps to draw and list")
+
+
+def _add_optimize(sub, builtins: str) -> None:
+    try:
+        from ._objectives import OBJECTIVES
+        from ._optimize import DEFAULT_LEARNING_RATE
+    except Exception:  # noqa: BLE001 - help must work even if the optimizer cannot be imported
+        OBJECTIVES = ("closure", "closure_any", "min_weight", "signed_q", "dfc", "dfc_eig")
+        DEFAULT_LEARNING_RATE = 0.02
+    p = sub.add_parser(
+        "optimize", help="move contacts over the surface by gradient to make grasps better",
+        description="Optimize --starts grasps of OBJECT by gradient (grasp_jax.optimize): every start moves\n"
+                    "its contacts over the surface for --steps steps; the best iterate of each is scored\n"
+                    "exactly (force-closure, Q), written to --out and summarized. Starts are random, or the\n"
+                    "best grasps of a file written by 'grasp-jax sample' (--from: sample, then refine).",
+        epilog=_epilog(builtins), formatter_class=_Formatter)
+    p.add_argument("object", metavar="OBJECT", nargs="?", default=None,
+                   help="built-in name or mesh / polygon CSV file (default: the --from file's object)")
+    _add_hole(p)
+    g = p.add_argument_group("optimization")
+    g.add_argument("--fingers", type=_int(2, "an integer >= 2"), default=None,
+                   help="contacts per grasp (default: the --from file's, else 4)")
+    g.add_argument("--starts", type=_count, default=1024,
+                   help="grasps optimized together (random starts; with --from, its best STARTS grasps)")
+    g.add_argument("--steps", type=_count, default=200, help="optimizer steps")
+    g.add_argument("--seed", type=_int(0, "an integer >= 0"), default=0,
+                   help="random seed of the starts (and of the figure's random grasps)")
+    g.add_argument("--objective", choices=OBJECTIVES, default="closure",
+                   help="what is maximized: 'closure' = min(signed Q, 4 x torque margin), positive exactly "
+                        "at force-closure; 'closure_any' the same for every choice of c_1; 'min_weight' the "
+                        "classical margin; 'signed_q'; 'dfc', 'dfc_eig' the DFC energies (baselines)")
+    g.add_argument("--lr", type=_positive_float, default=DEFAULT_LEARNING_RATE,
+                   help="peak learning rate of Adam (cosine decay), in object radii per step")
+    g.add_argument("--normals", choices=("smooth", "flat"), default="smooth",
+                   help="normals of meshes and polygons while optimizing: interpolated ('smooth', sharp "
+                        "edges kept) or face normals ('flat'); analytic shapes use exact normals")
+    g.add_argument("--from", dest="from_file", type=Path, default=None, metavar="FILE",
+                   help="start from the best --starts grasps (by force-closure, then Q; all if fewer) of "
+                        "FILE, a result of 'grasp-jax sample' (.npz or .parquet)")
+    s = p.add_argument_group("scoring")
+    s.add_argument("--mu", type=_positive_float, default=None,
+                   help=f"friction coefficient (default: the --from file's, else {DEFAULT_MU})")
+    s.add_argument("--edges", type=_int(3, "an integer >= 3"), default=None,
+                   help="edges of each linearized 3D friction cone (default: the --from file's, else 8)")
+    o = p.add_argument_group("output and performance")
+    o.add_argument("--out", type=Path, default=None, metavar="FILE",
+                   help="write every start's final grasp, scores, objective history and end reason to FILE "
+                        "(.npz or .parquet), atomically")
+    o.add_argument("--devices", type=_int(1, "an integer >= 1"), default=None, metavar="N",
+                   help="CPU devices to split the cores into (default: one per core; ignored if XLA_FLAGS "
+                        "already sets it)")
+    o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    _add_plot(p, help_text="draw Q against step (median and best over starts, beside as many random grasps) "
+                           "and the best distinct grasps on the object")
+    p.set_defaults(func=_cmd_optimize, distributed=False)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -242,6 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_hole(p, from_file=True)
     _add_plot(p, default_help="default: FILE with suffix .png")
     p.set_defaults(func=_cmd_show)
+
+    _add_optimize(sub, builtins)
 
     p = sub.add_parser("demo", help=f"the default run: {DEMO_NUM:,} 4-finger grasps of the {DEMO_OBJECT}",
                        description="Sample and score random grasps of a built-in object and print what was "
@@ -332,7 +396,7 @@ def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | 
     """Draw the grasps of a :class:`grasp_jax.summary.BestGrasps` on ``obj`` in one figure (atomic)."""
     import numpy as np
 
-    from . import plotting, storage
+    from . import plotting
 
     plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend, as the plotting module uses
     k = len(best)
@@ -358,19 +422,26 @@ def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | 
         if title:
             fig.suptitle(title, fontsize=11)
         fig.tight_layout()
-        fd, tmp = storage.temp_file(path, what="figure")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        _save_figure(fig, path)
     finally:
         plt.close(fig)
     return path
+
+
+def _save_figure(fig, path: Path) -> None:
+    """Write ``fig`` to ``path`` atomically (a temporary file renamed into place)."""
+    from . import storage
+
+    fd, tmp = storage.temp_file(path, what="figure")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _rings(obj):
@@ -501,6 +572,189 @@ def _cmd_show(args) -> int:
         print(f"{r:4d}  {int(i):9d}  {q:.4f}")
     print(f"figure {plot}")
     return 0
+
+
+#: Most random grasps drawn beside the optimization curves of ``optimize --plot``.
+MAX_SAMPLED = 1 << 18
+
+
+def _same_object(spec: str, stored: str, meta: dict) -> bool:
+    """Whether OBJECT names the object a file's metadata names."""
+    if spec in (stored, meta.get("object_name")):
+        return True
+    try:
+        return os.path.exists(spec) and os.path.exists(stored) and os.path.samefile(spec, stored)
+    except OSError:
+        return False
+
+
+def _cmd_optimize(args) -> int:
+    from . import storage, summary
+
+    if args.out is not None:
+        storage.check_output_path(args.out)
+    _check_plot_path(args.plot)
+    meta_in, src = {}, None
+    if args.from_file is not None:
+        storage.check_input_path(args.from_file, what="--from file")
+        if args.out is not None and args.out.resolve() == args.from_file.resolve():
+            raise ValueError("--out must differ from the --from file")
+        src = storage.ResultFile(args.from_file)
+        meta_in = dict(src.metadata)
+        if args.fingers is not None and args.fingers != src.fingers:
+            raise ValueError(f"--from file {str(args.from_file)!r} holds {src.fingers}-finger grasps, "
+                             f"not {args.fingers} (--fingers)")
+        stored = meta_in.get("object")
+        if args.object is not None and stored is not None and not _same_object(args.object, stored, meta_in):
+            raise ValueError(f"--from file {str(args.from_file)!r} holds grasps of {stored!r}, not of "
+                             f"{args.object!r}: omit OBJECT to use the file's")
+        if args.object is None:
+            args.object = stored
+    if args.object is None:
+        raise ValueError(f"--from file {str(args.from_file)!r} names no object: give OBJECT" if src is not None
+                         else "no OBJECT: name a built-in object or a mesh / polygon file (or --from FILE)")
+    fingers = args.fingers if args.fingers is not None else (src.fingers if src is not None else 4)
+    mu = args.mu if args.mu is not None else float(meta_in.get("mu", DEFAULT_MU))
+    edges = args.edges if args.edges is not None else int(meta_in.get("edges", 8))
+    _setup(args)
+    holes = args.hole or (list(meta_in.get("object_holes") or ()) if args.object == meta_in.get("object") else [])
+    obj = _load_object(args.object, holes)
+    init, starts = None, args.starts
+    if src is not None:
+        if src.dim != obj.dim:
+            raise ValueError(f"--from file {str(args.from_file)!r} holds {src.dim}D grasps but object "
+                             f"{obj.name!r} is {obj.dim}D")
+        best_in, _ = summary.best_starts(args.from_file, args.starts)
+        init, starts = (best_in.points, best_in.normals), len(best_in)
+    result = _optimize(args, obj, fingers=fingers, starts=starts, mu=mu, edges=edges, init=init)
+    meta = storage.metadata(
+        command="optimize",
+        object=storage.object_spec(obj, args.object),
+        object_name=str(obj.name),
+        dim=int(obj.dim),
+        mu=float(mu),
+        edges=int(edges),
+        fingers=int(fingers),
+        seed=int(args.seed),
+        num=int(starts),
+        torque_test="exact",
+        objective=args.objective,
+        steps=int(args.steps),
+        learning_rate=float(args.lr),
+        normals=result.normal_kind,
+        init="random" if src is None else str(args.from_file.resolve()),
+        seconds=round(float(result.seconds), 3),
+    )
+    if holes:
+        meta["object_holes"] = [storage.object_spec(obj, h) for h in holes]
+    path = _write_optimized(args.out, result, meta) if args.out is not None else None
+    best = _distinct_best(result, max(args.top, 5))
+    sampled = _sampled_quality(args, obj, fingers, mu, edges, starts) if args.plot is not None else None
+    report = summary.optimize_summary(result, meta, best=best, output=path, sampled=sampled)
+    if not args.quiet:
+        print(summary.summary_json(report) if args.json else summary.format_optimize(report), flush=True)
+    if args.plot is not None:
+        _plot_optimization(args, obj, result, best, sampled, mu, edges)
+        _say(args, f"figure         {args.plot}")
+    return 0
+
+
+def _optimize(args, obj, *, fingers, starts, mu, edges, init):
+    import warnings
+
+    import grasp_jax as gj
+
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
+            return gj.optimize(obj, args.seed, fingers=fingers, mu=mu, starts=starts, steps=args.steps,
+                               num_edges=edges, objective=args.objective, learning_rate=args.lr,
+                               normals=args.normals, init=init, progress=not args.quiet)
+    except (TypeError, NotImplementedError) as e:  # an object kind the optimizer cannot move contacts on
+        raise ValueError(f"cannot optimize grasps of {obj.name!r}: {e}") from None
+
+
+def _write_optimized(path: Path, result, meta: dict) -> Path:
+    """The optimize result file: the fields of ``sample`` plus the per-start history, atomically."""
+    import numpy as np
+
+    from . import storage
+
+    ev = result.evaluation
+    batch = {
+        "points": np.asarray(result.points, float),
+        "normals": np.asarray(result.normals, float),
+        "force_closure": np.asarray(ev.force_closure, bool),
+        "quality": np.asarray(ev.quality, float),
+        "converged": np.asarray(ev.converged, bool),
+        "initial_points": np.asarray(result.initial_points, float),
+        "objective": np.asarray(result.objective, float),
+        "reason": np.asarray(result.reason, np.int8),
+        "history": np.asarray(result.history, float),
+    }
+    if result.quality_history is not None:
+        batch["quality_history"] = np.asarray(result.quality_history, float)
+    fields = [*storage.RESULT_FIELDS, *(f for f in batch if f not in storage.RESULT_FIELDS)]
+    with storage.open_writer(path, meta, fields, fingers=batch["points"].shape[1], dim=batch["points"].shape[2],
+                             steps=batch["history"].shape[1]) as w:
+        w.write(batch)
+    return w.path
+
+
+def _distinct_best(result, k: int):
+    """The ``k`` best distinct force-closure grasps of an optimization, as :class:`BestGrasps`."""
+    import numpy as np
+
+    from .summary import BestGrasps
+
+    index = np.asarray(result.distinct(), np.int64)[:k]
+    return BestGrasps(index, np.asarray(result.points, float)[index], np.asarray(result.normals, float)[index],
+                      np.asarray(result.quality, float)[index])
+
+
+def _sampled_quality(args, obj, fingers, mu, edges, starts):
+    """Q (0 where not force-closure) of as many random grasps as starts x steps (at most
+    :data:`MAX_SAMPLED`), for the figure."""
+    import warnings
+
+    import numpy as np
+
+    import grasp_jax as gj
+
+    from . import sampling
+
+    num = int(min(starts * args.steps, MAX_SAMPLED))
+    points, normals = sampling.sample_grasps(obj, num, fingers, seed=args.seed)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
+        res = gj.evaluate(points, normals, mu=mu, num_edges=edges)
+    return np.where(np.asarray(res.force_closure), np.asarray(res.quality, float), 0.0)
+
+
+def _plot_optimization(args, obj, result, best, sampled, mu, edges) -> None:
+    import numpy as np
+
+    from . import plotting
+
+    plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend, as the plotting module uses
+    if result.quality_history is not None:
+        curves, ylabel = result.quality_history, "Q (0 while not force-closure)"
+    else:
+        curves, ylabel, sampled = result.history, f"objective {result.objective_name!r}", None
+    grasps = [(best.points[i], best.normals[i], float(best.quality[i]), f"start #{int(best.index[i])}")
+              for i in range(min(args.top, len(best)))]
+    if not grasps:
+        _warn("no force-closure grasp: only the curves are drawn")
+    geometry = (_rings(obj) if obj.dim == 2 else _mesh(obj)) if grasps else None
+    fc = float(np.mean(result.force_closure))
+    title = (f"{obj.name}: {len(result.force_closure):,} starts x {result.steps} steps, objective "
+             f"{result.objective_name!r}: {100 * fc:.0f}% force-closure")
+    fig = plotting.plot_optimization(curves, sampled_quality=sampled, grasps=grasps, geometry=geometry, mu=mu,
+                                     num_edges=edges, ylabel=ylabel, title=title)
+    try:
+        _save_figure(fig, args.plot)
+    finally:
+        plt.close(fig)
 
 
 # ---------------------------------------------------------------------------------------------

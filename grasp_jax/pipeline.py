@@ -28,9 +28,7 @@ Several hosts
 
 from __future__ import annotations
 
-import datetime
 import math
-import os
 import queue
 import threading
 import time
@@ -107,17 +105,6 @@ class _Prefetch:
         self._thread.join(timeout=5)
 
 
-def _metadata_base(**kwargs) -> dict:
-    from . import __version__
-
-    meta = {
-        "grasp_jax_version": __version__,
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-    }
-    meta.update(kwargs)
-    return meta
-
-
 def _jsonable(x):
     if x is None:
         return None
@@ -163,7 +150,7 @@ def score_stream(
     from . import storage
 
     mu = float(mu)
-    fields = ["points", "normals", "force_closure", "quality", "converged"]
+    fields = list(storage.RESULT_FIELDS)
     if epsilon:
         fields += ["epsilon", "volume"]
     meta = dict(metadata)
@@ -328,14 +315,6 @@ def _slice_chunks(chunks: Iterator, start: int, stop: int, size: int | None = No
         yield {"points": p, "normals": n}
 
 
-def _object_spec(obj, spec) -> str:
-    """What to store so that ``grasp_jax.objects.load`` finds the object again."""
-    if spec is None:
-        return str(obj.name)
-    spec = str(spec)
-    return os.path.abspath(spec) if os.path.exists(spec) else spec
-
-
 def run(
     obj,
     num: int,
@@ -412,8 +391,8 @@ def run(
             raise ValueError(f"origin must have {obj.dim} coordinates; got {origin.tolist()}")
         if not (math.isfinite(torque_scale) and torque_scale > 0):
             raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
-    meta = _metadata_base(
-        object=_object_spec(obj, object_spec),
+    meta = storage.metadata(
+        object=storage.object_spec(obj, object_spec),
         object_name=str(obj.name),
         dim=int(obj.dim),
         mu=float(mu),
@@ -426,7 +405,7 @@ def run(
         first_contact=None if first_contact is None else int(first_contact),
     )
     if object_holes:
-        meta["object_holes"] = [_object_spec(obj, h) for h in object_holes]
+        meta["object_holes"] = [storage.object_spec(obj, h) for h in object_holes]
     if count > 1:
         meta.update(process_index=index, process_count=count, slice=[start, stop, num])
     kwargs = {} if first_contact is None else {"first_contact": first_contact}
@@ -490,7 +469,7 @@ def score_file(
         if not (math.isfinite(torque_scale) and torque_scale > 0):
             raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
     meta = {k: v for k, v in stored.items() if k not in ("epsilon_origin", "epsilon_torque_scale")}
-    meta.update(_metadata_base(
+    meta.update(storage.metadata(
         source=str(Path(path).resolve()),
         dim=src.dim,
         fingers=src.fingers,

@@ -40,6 +40,7 @@ __all__ = [
     "reachable_axes_2d",
     "reachable_axes_3d",
     "decimate",
+    "plot_optimization",
 ]
 
 #: Colours used throughout (contacts, cones, reference contact, mesh).
@@ -794,4 +795,83 @@ def plot_central_axes_3d(points, normals, *, mu, num_edges=8, samples=20000, see
         fig.tight_layout()
     else:
         axes[0].set_title(f"{text}\nentry points", fontsize=9)
+    return _save(fig, path)
+
+
+def plot_optimization(quality_history, *, sampled_quality=None, grasps=(), geometry=None, mu=None,
+                      num_edges=8, ylabel="Q", title=None, path=None):
+    """A multi-start optimization at a glance: Q against step beside random sampling, and the best
+    grasps it found.
+
+    Args:
+        quality_history: ``(S, steps)`` Q of every start at every step (0 while not force-closure;
+            :attr:`grasp_jax.OptimizeResult.quality_history`), or any per-step score (``ylabel``).
+        sampled_quality: ``(N,)`` Q of random grasps for comparison (0 for those not force-closure),
+            drawn beside the curves as a horizontal histogram sharing their axis; its median and its
+            best are drawn across the curves as dashed lines.
+        grasps: ``[(points (n, d), normals (n, d), quality, label), ...]``: drawn in a row below.
+        geometry: the object the grasps are on, as :func:`plot_grasp_2d` (rings or vertices) or
+            :func:`plot_grasp_3d` (a mesh) take it; required with ``grasps``.
+        mu, num_edges: the friction cones of the drawn grasps.
+        ylabel: what ``quality_history`` holds.
+        title: the figure's title.
+        path: save the figure there.
+
+    Returns:
+        The :class:`matplotlib.figure.Figure`.
+    """
+    plt = _pyplot()
+    hist = np.asarray(quality_history, dtype=float)
+    if hist.ndim != 2 or hist.shape[1] < 1 or hist.shape[0] < 1:
+        raise ValueError(f"quality_history must have shape (starts, steps); got {hist.shape}")
+    grasps = list(grasps)
+    if grasps and geometry is None:
+        raise ValueError("geometry is required to draw grasps")
+    dim = np.asarray(grasps[0][0]).shape[-1] if grasps else None
+    cols = max(len(grasps), 1)
+    fig = plt.figure(figsize=(max(9.0, 3.2 * cols), 4.2 + (3.4 if grasps else 0.0)), dpi=100)
+    outer = fig.add_gridspec(2 if grasps else 1, 1, height_ratios=[4.2, 3.4] if grasps else None, hspace=0.3)
+    top = outer[0].subgridspec(1, 2, width_ratios=[4, 1], wspace=0.05)
+    ax = fig.add_subplot(top[0])
+    steps = np.arange(1, hist.shape[1] + 1)
+    finite = np.where(np.isfinite(hist), hist, np.nan)
+    lo, med, hi = np.nanpercentile(finite, [25, 50, 75], axis=0)
+    ax.fill_between(steps, lo, hi, color=_CONTACT, alpha=0.15, lw=0, label="25-75% of starts")
+    ax.plot(steps, med, color=_CONTACT, lw=2, label="median over starts")
+    ax.plot(steps, np.nanmax(finite, axis=0), color=_FIRST, lw=2, label="best over starts")
+    ax.set_xlabel("step")
+    ax.set_ylabel(ylabel)
+    ax.set_xlim(1, max(steps[-1], 2))
+    ax.grid(alpha=0.3)
+    side = fig.add_subplot(top[1], sharey=ax)
+    if sampled_quality is not None:
+        q = np.asarray(sampled_quality, dtype=float).ravel()
+        q = q[np.isfinite(q)]
+        if q.size:
+            top_value = max(float(np.nanmax(finite)), float(q.max()), 1e-12)
+            side.hist(q, bins=np.linspace(0.0, top_value * 1.02, 41), orientation="horizontal",
+                      color=_CONE, alpha=0.8)
+            side.set_xscale("log")
+            for value, style, what in ((np.median(q), "--", "median"), (q.max(), ":", "best")):
+                ax.axhline(value, color=_CONE, ls=style, lw=1.5,
+                           label=f"{what} of {q.size:,} random grasps")
+                side.axhline(value, color=_CONE, ls=style, lw=1.5)
+            fc = float((q > 0).mean())
+            side.set_title(f"random grasps\n({100 * fc:.0f}% force-closure)", fontsize=9)
+    side.set_xlabel("grasps")
+    side.tick_params(labelleft=False)
+    side.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8, framealpha=0.8)
+    if grasps:
+        row = outer[1].subgridspec(1, cols, wspace=0.1)
+        for i, (points, normals, quality, label) in enumerate(grasps):
+            if dim == 2:
+                gax = fig.add_subplot(row[i])
+                plot_grasp_2d(geometry, points, normals, mu=mu, quality=quality, ax=gax, title=label)
+            else:
+                gax = fig.add_subplot(row[i], projection="3d")
+                plot_grasp_3d(geometry, points, normals, mu=mu, num_edges=num_edges, quality=quality, ax=gax,
+                              title=label)
+    if title:
+        fig.suptitle(title, fontsize=11)
     return _save(fig, path)

@@ -54,6 +54,8 @@ SCALAR_FIELDS = {
     "objective": np.dtype(np.float64),
     "reason": np.dtype(np.int8),
 }
+#: The fields of a scored result (``grasp-jax sample`` / ``score``), in file order.
+RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")
 #: Per-grasp fields of shape ``(fingers, d)``.
 POINT_FIELDS = ("points", "normals", "initial_points")
 #: Per-grasp fields with one value per optimizer step, shape ``(steps,)``.
@@ -83,6 +85,29 @@ def check_output_path(path, *, suffixes=SUFFIXES, what: str = "output file") -> 
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"cannot write {what} {str(path)!r}: its directory {str(parent)!r} is not writable")
     return path
+
+
+def metadata(**kwargs) -> dict:
+    """A result file's metadata: the grasp_jax version and the date (UTC), then ``kwargs``."""
+    import datetime
+
+    from . import __version__
+
+    meta = {
+        "grasp_jax_version": __version__,
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    meta.update(kwargs)
+    return meta
+
+
+def object_spec(obj, spec) -> str:
+    """What to store so that ``grasp_jax.objects.load`` finds the object again: ``spec`` (a
+    built-in name, or a file made absolute), else ``obj.name``."""
+    if spec is None:
+        return str(obj.name)
+    spec = str(spec)
+    return os.path.abspath(spec) if os.path.exists(spec) else spec
 
 
 def _umask() -> int:

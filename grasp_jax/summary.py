@@ -235,8 +235,130 @@ def best_in_file(path, top: int = DEFAULT_TOP, chunk: int = 65536) -> tuple[Best
     return keep.best, dict(src.metadata)
 
 
-def summary_json(summary: PipelineSummary) -> str:
-    """The summary as one JSON line."""
+def best_starts(path, k: int, chunk: int = 65536) -> tuple[BestGrasps, dict]:
+    """The ``k`` best grasps of a file, to start an optimization from (``grasp-jax optimize
+    --from``), streamed, and the file's metadata.
+
+    Force-closure grasps come first, by decreasing Q, then the others by decreasing Q (ties: file
+    order); all grasps when the file holds ``k`` or fewer. A file without ``quality`` and
+    ``force_closure`` columns (plain ``points`` and ``normals``) gives its first ``k`` grasps.
+    """
+    from . import storage
+
+    src = storage.ResultFile(path)
+    k = int(k)
+    if k < 1:
+        raise ValueError(f"k must be a positive integer; got {k}")
+    scored = "quality" in src.fields and "force_closure" in src.fields
+    columns = ("points", "normals") + (("quality", "force_closure") if scored else ())
+    held = None  # (index, points, normals, quality, force_closure) of the best so far
+    offset = 0
+    for c in src.iter_chunks(columns, chunk):
+        rows = len(c["points"])
+        q = np.asarray(c["quality"], float) if scored else np.zeros(rows)
+        fc = np.asarray(c["force_closure"], bool) if scored else np.zeros(rows, bool)
+        new = (np.arange(offset, offset + rows), c["points"], c["normals"], q, fc)
+        offset += rows
+        if held is not None:
+            new = tuple(np.concatenate([a, b]) for a, b in zip(held, new))
+        if len(new[0]) > k:
+            order = np.lexsort((new[0], -new[3], ~new[4]))[:k]
+            new = tuple(a[order] for a in new)
+        held = new
+        if not scored and offset >= k:
+            break
+    if held is None or not len(held[0]):
+        raise ValueError(f"{str(path)!r} holds no grasps")
+    order = np.lexsort((held[0], -held[3], ~held[4]))
+    index, points, normals, q, _ = (a[order] for a in held)
+    return BestGrasps(index, np.asarray(points, float), np.asarray(normals, float), q), dict(src.metadata)
+
+
+def optimize_summary(result, metadata: dict, *, best: BestGrasps | None = None, output=None,
+                     sampled=None) -> dict:
+    """What ``grasp-jax optimize`` prints, as a dictionary (JSON-ready).
+
+    Args:
+        result: a :class:`grasp_jax.OptimizeResult`.
+        metadata: the run's settings (as stored in the output file).
+        best: the best distinct force-closure grasps (listed).
+        output: the file written, if any.
+        sampled: ``(S * steps,)`` Q of as many random grasps (the figure's comparison), if drawn.
+    """
+    from ._optimize import EndReason
+
+    fc = np.asarray(result.force_closure, bool)
+    q = np.asarray(result.quality, float)
+    reasons = np.asarray(result.reason)
+    starts, steps = len(fc), int(result.steps)
+    seconds = float(result.seconds)
+    d = {
+        "starts": starts,
+        "steps": steps,
+        "force_closure": int(fc.sum()),
+        "force_closure_rate": float(fc.mean()) if starts else math.nan,
+        "quality_percentiles": {str(p): float(np.percentile(q[fc], p)) if fc.any() else math.nan
+                                for p in PERCENTILES},
+        "quality_mean": float(q[fc].mean()) if fc.any() else math.nan,
+        "quality_max": float(q[fc].max()) if fc.any() else math.nan,
+        "distinct_force_closure": int(result.num_distinct_force_closure),
+        "reasons": {r.name.lower(): int((reasons == r).sum()) for r in EndReason},
+        "seconds": seconds,
+        "start_steps_per_second": starts * steps / seconds if seconds > 0 else math.nan,
+        "unconverged": int((~np.asarray(result.evaluation.converged, bool)).sum()),
+        "output": None if output is None else str(output),
+        "metadata": dict(metadata),
+    }
+    if best is not None and len(best):
+        d["best"] = {"index": best.index.tolist(), "quality": best.quality.tolist()}
+    if sampled is not None:
+        sampled = np.asarray(sampled, float)
+        d["sampled"] = {"num": int(sampled.size), "force_closure_rate": float((sampled > 0).mean()),
+                        "quality_median": float(np.median(sampled)), "quality_max": float(sampled.max())}
+    return d
+
+
+def format_optimize(summary: dict, best: int = 5) -> str:
+    """:func:`optimize_summary` as aligned lines, in the style of :meth:`PipelineSummary.format`;
+    ``best``: how many of the best grasps to list."""
+    from ._optimize import EndReason
+
+    m = summary["metadata"]
+    starts, steps = summary["starts"], summary["steps"]
+    what = m.get("object_name") or m.get("object", "?")
+    lines = [
+        f"object         {what} ({m.get('dim', '?')}D), {m.get('fingers', '?')} fingers, mu {m.get('mu')}, "
+        f"{m.get('edges')} cone edges, objective {m.get('objective')}, {m.get('normals')} normals",
+        f"optimized      {starts:,} starts x {steps:,} steps in {summary['seconds']:.1f} s: "
+        f"{summary['start_steps_per_second']:,.0f} start-steps/s (incl. compile; lr {m.get('learning_rate')}, "
+        f"starts {m.get('init', 'random')})",
+    ]
+    fc = f"{summary['force_closure']:,} of {starts:,} ({100 * summary['force_closure_rate']:.1f}%)"
+    if summary["unconverged"]:
+        fc += f"; {summary['unconverged']:,} with an unconverged LP, counted as not force-closure"
+    lines.append(f"force-closure  {fc}; {summary['distinct_force_closure']:,} distinct")
+    if summary["force_closure"]:
+        pct = "  ".join(f"p{p} {q:.3f}" for p, q in summary["quality_percentiles"].items())
+        lines.append(f"Q (FC grasps)  {pct}  mean {summary['quality_mean']:.3f}  max {summary['quality_max']:.4f}")
+    reasons = ", ".join(f"{EndReason[name.upper()].message} {count:,}" for name, count in summary["reasons"].items())
+    lines.append(f"end reasons    {reasons}")
+    if "sampled" in summary:
+        s = summary["sampled"]
+        lines.append(f"random grasps  {s['num']:,} (as many as starts x steps): force-closure "
+                     f"{100 * s['force_closure_rate']:.1f}%, Q median {s['quality_median']:.3f}, "
+                     f"max {s['quality_max']:.4f}")
+    if "best" in summary:
+        k = max(1, min(int(best), len(summary["best"]["index"])))
+        listed = ", ".join(f"#{int(i)} Q {float(q):.4f}" for i, q in
+                           zip(summary["best"]["index"][:k], summary["best"]["quality"][:k]))
+        lines.append(f"best grasp{'s' if k > 1 else ' '}    {listed}")
+    if summary["output"] is not None:
+        lines.append(f"output         {summary['output']}")
+    return "\n".join(lines)
+
+
+def summary_json(summary: PipelineSummary | dict) -> str:
+    """The summary (a :class:`PipelineSummary` or a dictionary) as one JSON line."""
     def default(o):
         if isinstance(o, (np.integer, np.floating)):
             return o.item()
@@ -244,7 +366,8 @@ def summary_json(summary: PipelineSummary) -> str:
             return o.tolist()
         return str(o)
 
-    return json.dumps(summary.to_dict(), default=default)
+    d = summary if isinstance(summary, dict) else summary.to_dict()
+    return json.dumps(d, default=default)
 
 
 __all__ = [
@@ -253,5 +376,8 @@ __all__ = [
     "BestGrasps",
     "PipelineSummary",
     "best_in_file",
+    "best_starts",
+    "format_optimize",
+    "optimize_summary",
     "summary_json",
 ]
