@@ -143,6 +143,7 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
         value, delta, torque = _closure(points, normals, mu, num_edges, iterations)
         return value, {"delta": delta, "torque": torque}
     if kind == "closure_any":
+        points, normals = jnp.asarray(points), jnp.asarray(normals)
         n = points.shape[0]
         rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
         values, deltas, torques = jax.vmap(

@@ -1,0 +1,190 @@
+"""The optimizer's objectives (``_objectives``) and the differentiable min-weight margin:
+signs against the exact verdicts and HiGHS, values against Q, gradients against finite
+differences, vmap against a loop, finiteness everywhere."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grasp_jax as gj
+from grasp_jax import _objectives, reference
+
+MU, M = 0.364, 4
+CENTER3 = np.zeros(3)
+
+
+def _sphere_grasps(rng, count, n):
+    p = rng.normal(size=(count, n, 3))
+    p /= np.linalg.norm(p, axis=-1, keepdims=True)
+    return p, p.copy()
+
+
+def _square_grasps(rng, count, n):
+    """Contacts on the boundary of the square [-1, 1]^2, normals outward."""
+    side = rng.integers(4, size=(count, n))
+    t = rng.uniform(-1, 1, size=(count, n))
+    normals = np.array([[1.0, 0], [0, 1.0], [-1.0, 0], [0, -1.0]])[side]
+    points = normals + t[..., None] * normals[..., ::-1] * np.array([-1.0, 1.0])
+    return points, normals
+
+
+def _objective(kind, d):
+    center = np.zeros(d)
+    return jax.jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, center, 1.0)[0]))
+
+
+@pytest.fixture(scope="module")
+def sphere_set():
+    rng = np.random.default_rng(7)
+    p, nr = _sphere_grasps(rng, 300, 4)
+    ev = gj.evaluate(p, nr, mu=MU, num_edges=M)
+    return p, nr, ev
+
+
+@pytest.mark.parametrize("kind", ["closure", "closure_any", "min_weight"])
+def test_positive_exactly_when_force_closure_3d(sphere_set, kind):
+    p, nr, ev = sphere_set
+    value = np.asarray(_objective(kind, 3)(p, nr))
+    fc = np.asarray(ev.force_closure)
+    assert 0.2 < fc.mean() < 0.9
+    assert np.isfinite(value).all()
+    # Marginal grasps (either margin within 1e-6) may go either way.
+    clear = (np.abs(np.asarray(ev.delta)) > 1e-6) & (np.abs(np.asarray(ev.torque_margin)) > 1e-6)
+    np.testing.assert_array_equal((value > 1e-7)[clear], fc[clear])
+
+
+def test_positive_exactly_when_force_closure_2d():
+    rng = np.random.default_rng(3)
+    p, nr = _square_grasps(rng, 300, 3)
+    ev = gj.evaluate(p, nr, mu=MU)
+    fc = np.asarray(ev.force_closure)
+    assert 0.05 < fc.mean() < 0.9
+    for kind in ("closure", "closure_any", "min_weight"):
+        value = np.asarray(_objective(kind, 2)(p, nr))
+        clear = (np.abs(np.asarray(ev.delta)) > 1e-6) & (np.abs(np.asarray(ev.torque_margin)) > 1e-6)
+        np.testing.assert_array_equal((value > 1e-7)[clear], fc[clear], err_msg=kind)
+
+
+def test_min_weight_sign_agrees_with_highs(sphere_set):
+    p, nr, _ = sphere_set
+    value = np.asarray(_objective("min_weight", 3)(p[:60], nr[:60]))
+    for i in range(60):
+        ref = reference.min_weight_highs(p[i], nr[i], MU, num_edges=M)
+        if abs(ref) > 1e-6:
+            assert (value[i] > 0) == (ref > 0), i
+
+
+def test_closure_is_q_where_the_torque_term_does_not_bind(sphere_set):
+    p, nr, ev = sphere_set
+    value = np.asarray(_objective("closure", 3)(p, nr))
+    fc, q = np.asarray(ev.force_closure), np.asarray(ev.quality)
+    equal = np.abs(value - q) < 1e-7
+    assert equal[fc].mean() > 0.95
+    # Where it is not Q, it is smaller (the torque term binds), never larger.
+    assert np.all(value[fc] <= q[fc] + 1e-7)
+
+
+def test_closure_any_does_not_depend_on_the_order(sphere_set):
+    p, nr, _ = sphere_set
+    f = _objective("closure_any", 3)
+    perm = np.array([2, 0, 3, 1])
+    np.testing.assert_allclose(f(p[:40], nr[:40]), f(p[:40, perm], nr[:40, perm]), atol=1e-7)
+
+
+def test_vmap_equals_a_loop(sphere_set):
+    p, nr, _ = sphere_set
+    for kind in _objectives.OBJECTIVES:
+        batched = np.asarray(_objective(kind, 3)(p[:5], nr[:5]))
+        one = jax.jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, M, kind, CENTER3, 1.0)[0])
+        np.testing.assert_allclose(batched, [one(p[i], nr[i]) for i in range(5)], rtol=1e-9, atol=1e-12)
+
+
+def _finite_difference(f, x, h=1e-6):
+    g = np.zeros_like(x)
+    for idx in np.ndindex(x.shape):
+        e = np.zeros_like(x)
+        e[idx] = h
+        g[idx] = (f(x + e) - f(x - e)) / (2 * h)
+    return g
+
+
+@functools.lru_cache(maxsize=None)
+def _value_and_grad(kind, d):
+    """Batched value and gradient in points and normals, compiled once per objective."""
+    one = lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, np.zeros(d), 1.0)[0]  # noqa: E731
+    return jax.jit(jax.vmap(jax.value_and_grad(one, argnums=(0, 1))))
+
+
+def _perturbed(p, nr, h):
+    """``(2 * 2 * p.size + 1)`` copies of the grasp, each coordinate of points and normals moved
+    by +h and -h, then the grasp itself."""
+    P, N = [], []
+    for which in (0, 1):
+        for idx in np.ndindex(p.shape):
+            for sign in (1.0, -1.0):
+                a, b = p.copy(), nr.copy()
+                (a if which == 0 else b)[idx] += sign * h
+                P.append(a)
+                N.append(b)
+    return np.array(P + [p]), np.array(N + [nr])
+
+
+@pytest.mark.parametrize("kind", _objectives.OBJECTIVES)
+def test_gradients_match_finite_differences(kind):
+    """Away from kinks (the one-sided differences agree), d objective / d points and
+    d normals match central differences, on perturbed FC-ish sphere grasps."""
+    rng = np.random.default_rng(11)
+    h = 1e-6
+    f = _value_and_grad(kind, 3)
+    checked = 0
+    for _ in range(8):
+        p, nr = _sphere_grasps(rng, 1, 4)
+        p, nr = p[0] + 0.05 * rng.normal(size=(4, 3)), nr[0]
+        P, N = _perturbed(p, nr, h)
+        values, (gp, gn) = (np.asarray(v) if not isinstance(v, tuple) else tuple(map(np.asarray, v))
+                            for v in f(P, N))
+        assert np.isfinite(gp).all() and np.isfinite(gn).all()
+        up, down, mid = values[:-1:2], values[1:-1:2], values[-1]
+        if np.any(np.abs((up - mid) - (mid - down)) > 1e-3 * h + 1e-10):
+            continue  # a kink along some coordinate
+        fd = ((up - down) / (2 * h)).reshape(2, *p.shape)
+        scale = max(1.0, np.abs(fd).max())
+        np.testing.assert_allclose(gp[-1], fd[0], atol=2e-5 * scale)
+        np.testing.assert_allclose(gn[-1], fd[1], atol=2e-5 * scale)
+        checked += 1
+        if checked == 3:
+            break
+    assert checked >= 2, f"too few smooth cases for {kind}"
+
+
+def test_min_weight_is_differentiable(sphere_set):
+    """``jax.grad`` of ``gj.min_weight`` works (it used to fail on the while loop), is finite on
+    every grasp, and matches finite differences."""
+    p, nr, _ = sphere_set
+    g = jax.grad(lambda x: gj.min_weight(x, nr[:20], mu=MU, num_edges=M).sum())(jnp.asarray(p[:20]))
+    assert np.isfinite(np.asarray(g)).all()
+    fc = np.flatnonzero(np.asarray(gj.min_weight(p[:20], nr[:20], mu=MU, num_edges=M)) > 1e-4)
+    i = int(fc[0])
+    f = lambda x: float(gj.min_weight(x, nr[i], mu=MU, num_edges=M))  # noqa: E731
+    fd = _finite_difference(f, p[i])
+    np.testing.assert_allclose(np.asarray(g[i]), fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
+
+
+def test_objectives_are_finite_on_degenerate_grasps():
+    """All contacts at one point with one normal, and two contacts in 3D: finite values and
+    gradients; a 2-finger 3D grasp is never force-closure, so the closure objectives are <= 0."""
+    same = np.tile([1.0, 0.0, 0.0], (4, 1))
+    two = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
+    for kind in _objectives.OBJECTIVES:
+        for p in (same, two):
+            P = np.stack([p, p + 1e-3 * np.eye(3)[: len(p)]])
+            v, (gp, gn) = _value_and_grad(kind, 3)(P, P)
+            assert np.isfinite(np.asarray(v)).all(), kind
+            assert np.isfinite(np.asarray(gp)).all() and np.isfinite(np.asarray(gn)).all(), kind
+            if kind in ("closure", "closure_any", "min_weight") and len(p) == 2:
+                assert np.all(np.asarray(v) <= 1e-7), kind
