@@ -8,7 +8,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from . import reference
 from ._constants import DEFAULT_NUM_EDGES
-from ._validate import check_grasps, check_num_edges, check_scalar
+from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
 
 
 def epsilon_one(wrenches: np.ndarray) -> tuple[float, float]:
@@ -51,7 +51,19 @@ def ferrari_canny(
 
     Returns:
         ``(epsilon, volume)``: two NumPy arrays of the leading batch shape.
+
+    Raises:
+        TypeError: an argument is a JAX tracer (inside ``jit``, ``vmap`` or ``grad``): qhull runs
+            on concrete NumPy arrays. Call it outside the transformation, or use
+            :func:`grasp_jax.min_weight` or :func:`grasp_jax.quality`, which compose.
     """
+    if is_traced(points, normals, tangents, mu, origin, torque_scale):
+        raise TypeError(
+            "grasp_jax.ferrari_canny computes the convex hull with qhull (SciPy) on concrete NumPy "
+            "arrays and cannot be traced by jax.jit, jax.vmap or jax.grad. Call it outside the "
+            "transformation, or use grasp_jax.min_weight (the force-closure margin l*) or "
+            "grasp_jax.quality (Q), which compose with jit, vmap and grad."
+        )
     points, normals, tangents, batch = check_grasps(points, normals, tangents)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)

@@ -218,8 +218,8 @@ def evaluate_one(
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
         # stops then. The quality LP is feasible by construction.
-        (q_sol,) = solve(q_lp, iterations=iterations, consistent=True)
-        (t_sol,) = solve(t_lp, iterations=iterations)
+        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True)
+        (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations)
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
@@ -227,7 +227,7 @@ def evaluate_one(
         t_status = jnp.where(full, t_sol.status, Status.OPTIMAL).astype(jnp.int8)
         t_margin = jnp.where(full, t_margin, 0.0)
     else:
-        (q_sol,) = solve(q_lp, iterations=iterations, consistent=True)
+        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True)
         if d == 2:
             torque_span, t_margin, t_cert = _exact_torque_2d(tau)
             if torque_test == "paper":

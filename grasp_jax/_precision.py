@@ -47,7 +47,7 @@ def _x64_enabled() -> bool:
     return bool(jax.config.jax_enable_x64)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _backend_has_float64(backend: str) -> str | None:
     """``None`` when the default device computes in float64, else why not (checked once)."""
     try:

@@ -8,6 +8,10 @@ import jax
 import numpy as np
 
 
+def _traced(*xs) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in xs)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class GraspEvaluation:
@@ -49,8 +53,31 @@ class GraspEvaluation:
 
     @property
     def converged(self):
-        """``B`` bool: every LP of the grasp ended optimal or certified (status not NOT_CONVERGED)."""
+        """``B`` bool: every LP of the grasp ended optimal or certified (status not NOT_CONVERGED).
+        A NumPy array for concrete results, a JAX array under a transformation."""
+        if _traced(self.quality_status, self.torque_status):
+            return (self.quality_status != 2) & (self.torque_status != 2)
         return (np.asarray(self.quality_status) != 2) & (np.asarray(self.torque_status) != 2)
+
+    def __repr__(self) -> str:
+        """A short summary, e.g. ``GraspEvaluation(batch=(1000,), force_closure 61.2%, Q median
+        0.31 where force-closure, dtype float64)``; the fields themselves are attributes."""
+        shape = tuple(np.shape(self.force_closure))
+        dtype = np.dtype(self.quality.dtype).name
+        if _traced(*(getattr(self, f.name) for f in dataclasses.fields(self))):
+            return f"GraspEvaluation(batch={shape}, traced, dtype {dtype})"
+        fc = np.asarray(self.force_closure)
+        parts = [f"batch={shape}"]
+        if fc.size:
+            parts.append(f"force_closure {100.0 * fc.mean():.1f}%")
+            q = np.asarray(self.quality)[fc]
+            if q.size:
+                parts.append(f"Q median {np.median(q):.3g} where force-closure")
+            bad = int(np.sum(~self.converged))
+            if bad:
+                parts.append(f"{bad} not converged")
+        parts.append(f"dtype {dtype}")
+        return f"GraspEvaluation({', '.join(parts)})"
 
     def __getitem__(self, index) -> "GraspEvaluation":
         """Index every field with the same batch index."""

@@ -79,6 +79,16 @@ class CentralAxis:
     pitch: jax.Array
     pure_torque: jax.Array
 
+    def __repr__(self) -> str:
+        """A short summary, e.g. ``CentralAxis(batch=(10,), 2D, 1 pure torque, dtype float64)``."""
+        shape = tuple(np.shape(self.pitch))
+        d = np.shape(self.point)[-1]
+        dtype = np.dtype(self.point.dtype).name
+        if any(isinstance(x, jax.core.Tracer) for x in (self.point, self.direction, self.pitch, self.pure_torque)):
+            return f"CentralAxis(batch={shape}, {d}D, traced, dtype {dtype})"
+        pure = int(np.sum(np.asarray(self.pure_torque)))
+        return f"CentralAxis(batch={shape}, {d}D, {pure} pure torque{'s' if pure != 1 else ''}, dtype {dtype})"
+
 
 def central_axis(wrench) -> CentralAxis:
     """Central axis of one or many wrenches.

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 _CONFIG_BEFORE = dict(jax.config.values)
-import grasp_jax  # noqa: E402,F401
+import grasp_jax  # noqa: F401
 
 #: Configuration entries that importing grasp_jax changed (must be none).
 IMPORT_CHANGED_CONFIG = {
