@@ -19,7 +19,7 @@ import numpy as np
 
 from .._precision import float64_scope
 from ._base import Contact
-from ._util import check_count, check_one, host_points, norm, pytree, sign, tangent, unit
+from ._util import check_count, check_one, host_points, jit_method, norm, pytree, sign, tangent, unit
 
 _X = jnp.array([1.0, 0.0])
 
@@ -94,12 +94,14 @@ class _Analytic:
     def _map(self, x):
         raise NotImplementedError
 
+    @jit_method()
     def embed(self, contact: Contact) -> tuple[jax.Array, jax.Array]:
         """``(point (3,), outward unit normal (3,))`` of one contact."""
         check_one("embed", contact, 3)
         p = jnp.asarray(contact.coords)
         return p, self._map(p)[1]
 
+    @jit_method()
     def chart(self, contact: Contact, v: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The map of ``point + P v``, shifted by the map's rounding at ``point`` so that
         ``chart(c, 0) == embed(c)`` exactly; smooth in ``v`` away from edges and rims."""
@@ -109,6 +111,7 @@ class _Analytic:
         q, nq = self._map(p + tangent(jnp.asarray(v, p.dtype), n0))
         return p + (q - p0), nq
 
+    @jit_method()
     def retract(self, contact: Contact, v: jax.Array) -> Contact:
         """One contact moved by the tangent part of ``v: (3,)`` and mapped onto the surface."""
         check_one("retract", contact, 3, v)
@@ -119,6 +122,7 @@ class _Analytic:
     def _move(self, p, w):
         return self._map(p + w)[0]
 
+    @jit_method(static=("count",))
     def sample(self, key: jax.Array, count: int) -> Contact:
         """``count`` contacts uniform by area: face ``(count,) int32`` (zeros), coords
         ``(count, 3)``."""

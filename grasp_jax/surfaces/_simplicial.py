@@ -29,7 +29,7 @@ import scipy.spatial
 import trimesh
 
 from ._base import Contact
-from ._util import check_count, check_one, host_points, pytree, tangent, unit
+from ._util import check_count, check_one, host_points, jit_method, pytree, tangent, unit
 
 #: pairs of (corner, incidence) handled at once when building corner normals on the host
 _CHUNK = 1 << 22
@@ -85,12 +85,14 @@ class SimplicialSurface:
             return jnp.asarray(self.normals, b.dtype)[f]
         return unit(b @ jnp.asarray(self.corners, b.dtype)[f], jnp.asarray(self.normals, b.dtype)[f])
 
+    @jit_method()
     def embed(self, contact: Contact) -> tuple[jax.Array, jax.Array]:
         """``(point (d,), outward unit normal (d,))`` of one contact."""
         check_one("embed", contact, self.dim)
         f, b = jnp.asarray(contact.face), jnp.asarray(contact.coords)
         return self._point(f, b), self._normal(f, b)
 
+    @jit_method()
     def chart(self, contact: Contact, v: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The point ``p + P_f v`` in face ``f``'s plane and the normal interpolated with its
         (linearly extended) barycentrics ``b + G_f v``; ``chart(c, 0) == embed(c)`` exactly."""
@@ -99,6 +101,7 @@ class SimplicialSurface:
         bv = b + jnp.asarray(self.grads, b.dtype)[f] @ jnp.asarray(v, b.dtype)
         return self._point(f, bv), self._normal(f, bv)
 
+    @jit_method()
     def retract(self, contact: Contact, v: jax.Array) -> Contact:
         """One contact moved by the tangent part of ``v: (d,)`` along the surface, across up to
         ``max_crossings`` edges (2D: corners)."""
@@ -140,6 +143,7 @@ class SimplicialSurface:
         f, b, _, _, _ = jax.lax.while_loop(moving, cross, state)
         return Contact(f.astype(f0.dtype), b)
 
+    @jit_method(static=("count",))
     def sample(self, key: jax.Array, count: int) -> Contact:
         """``count`` contacts uniform by area (2D: length): face ``(count,) int32``, coords
         ``(count, d)``."""

@@ -4,6 +4,7 @@ pytree-dataclass decorator and the one-contact check."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -77,3 +78,20 @@ def host_points(points, dim: int) -> np.ndarray:
         raise ValueError(f"locate: points must be finite with shape (..., {dim}); got shape "
                          f"{points.shape}")
     return points
+
+
+def jit_method(static: tuple[str, ...] = ()):
+    """Compile a surface method once per surface structure (the surface is an argument of the
+    compiled function, so eager calls are fast too; under an outer ``jit``/``vmap``/``grad`` it is
+    inlined)."""
+
+    def wrap(fn):
+        compiled = jax.jit(fn, static_argnames=static)
+
+        @functools.wraps(fn)
+        def method(self, *args, **kwargs):
+            return compiled(self, *args, **kwargs)
+
+        return method
+
+    return wrap
