@@ -842,6 +842,7 @@ def plot_optimization(quality_history, *, sampled_quality=None, grasps=(), geome
     ax.set_xlabel("step")
     ax.set_ylabel(ylabel)
     ax.set_xlim(1, max(steps[-1], 2))
+    ax.xaxis.get_major_locator().set_params(integer=True)
     ax.grid(alpha=0.3)
     side = fig.add_subplot(top[1], sharey=ax)
     if sampled_quality is not None:

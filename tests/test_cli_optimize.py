@@ -206,3 +206,24 @@ def test_user_mistakes_exit_2_with_one_line_and_no_file(cli, mistakes_dir, monke
         assert expect in lines[0], (args, out.err)
         assert out.out == "", args
     assert sorted(p.name for p in mistakes_dir.iterdir()) == before
+
+
+def test_plot_optimization_draws_curves_beside_random_grasps(tmp_path):
+    from grasp_jax import plotting
+
+    rng = np.random.default_rng(1)
+    history = np.maximum.accumulate(rng.random((8, 5)), axis=1)
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    grasp = (np.array([[0.5, 0.0], [0.5, 1.0]]), np.array([[0.0, -1.0], [0.0, 1.0]]), 1.0, "start #0")
+    fig = plotting.plot_optimization(history, sampled_quality=rng.random(40) * (rng.random(40) < 0.3),
+                                     grasps=[grasp, grasp], geometry=square, mu=0.364, title="t",
+                                     path=tmp_path / "f.png")
+    assert len(fig.axes) == 4  # curves, the random grasps' histogram, two grasps
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert "median over starts" in labels and "best of 40 random grasps" in labels
+    assert (tmp_path / "f.png").stat().st_size > 5_000
+    plotting._pyplot().close(fig)
+    with pytest.raises(ValueError, match="starts, steps"):
+        plotting.plot_optimization(np.zeros(5))
+    with pytest.raises(ValueError, match="geometry"):
+        plotting.plot_optimization(history, grasps=[grasp])
