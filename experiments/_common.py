@@ -69,3 +69,62 @@ def write(out: Path, text: str) -> Path:
     path = out / "results.md"
     path.write_text(text.rstrip() + "\n")
     return path
+
+
+def use_cpu_cores(count: int | None = None) -> int:
+    """Make each CPU core an XLA device (``--xla_force_host_platform_device_count``), as the
+    command line does; call before JAX is imported. Returns the device count asked for."""
+    import os
+
+    if count is None:
+        try:
+            count = len(os.sched_getaffinity(0))
+        except AttributeError:
+            count = os.cpu_count() or 1
+    flags = os.environ.get("XLA_FLAGS", "")
+    if count > 1 and "xla_force_host_platform_device_count" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count}".strip()
+    return count
+
+
+def compilation_cache(enable: bool = True) -> str | None:
+    """Keep compiled XLA programs between runs in the command line's cache
+    (``$GRASP_JAX_CACHE``, default ``~/.cache/grasp_jax/xla``; ``JAX_COMPILATION_CACHE_DIR`` wins).
+    Returns the folder, or ``None`` when disabled."""
+    import os
+
+    import jax
+
+    if not enable:
+        return None
+    where = os.environ.get("JAX_COMPILATION_CACHE_DIR") or os.environ.get("GRASP_JAX_CACHE")
+    if where is None:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        where = os.path.join(base, "grasp_jax", "xla")
+    os.makedirs(where, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", where)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    return where
+
+
+def write_json(out: Path, data, name: str = "results.json") -> Path:
+    """``data`` as JSON in ``out/name`` (written to a temporary file, then renamed)."""
+    import json
+    import os
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / name
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_jsonable))
+    os.replace(tmp, path)
+    return path
+
+
+def _jsonable(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, Path):
+        return str(x)
+    raise TypeError(f"not JSON serializable: {type(x).__name__}")
