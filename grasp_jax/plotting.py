@@ -297,7 +297,8 @@ def plot_grasp_3d(mesh_or_vertices_faces, points, normals, *, mu, num_edges=8, q
     lo, hi = vertices.min(0), vertices.max(0)
     extent = float(np.max(hi - lo))
     length = 0.18 * extent if cone_length is None else float(cone_length)
-    edges = np.asarray(cone_edges(np.asarray(normals), float(mu), int(num_edges)))  # (n, m, 3)
+    with _float64():
+        edges = np.asarray(cone_edges(np.asarray(normals, np.float64), float(mu), int(num_edges)))
     edges = edges / np.linalg.norm(edges, axis=-1, keepdims=True)
     if cones == "outside":
         edges = -edges
@@ -364,8 +365,22 @@ def _balancing_weights(prim: np.ndarray, floor: float = 0.5) -> np.ndarray:
     return np.maximum(res.x[:k], 0.0) if res.status == 0 else np.full(k, 1.0 / k)
 
 
-def _random_axes(points, normals, mu, num_edges, samples, seed, concentration, balanced, center, radius,
-                 fill):
+def _float64():
+    """The library's float64 scope for the JAX calls made while drawing (grasp_jax never turns on
+    x64 globally)."""
+    from ._precision import float64_scope
+
+    return float64_scope()
+
+
+def _random_axes(*args):
+    """Central axes of ``samples`` random grasp wrenches of one normalized grasp, in float64."""
+    with _float64():
+        return _random_axes_f64(*args)
+
+
+def _random_axes_f64(points, normals, mu, num_edges, samples, seed, concentration, balanced, center, radius,
+                     fill):
     """Central axes of ``samples`` random grasp wrenches of one normalized grasp (JAX, batched)."""
     import jax
     import jax.numpy as jnp
@@ -377,8 +392,8 @@ def _random_axes(points, normals, mu, num_edges, samples, seed, concentration, b
         raise ValueError(f"samples must be a positive integer; got {samples!r}")
     if not np.all(np.asarray(concentration, float) > 0) or np.size(concentration) not in (1, 2):
         raise ValueError(f"concentration must be > 0 or a (low, high) pair of them; got {concentration!r}")
-    p = jnp.asarray(_normalize(points, center, radius, fill))
-    edges = cone_edges(jnp.asarray(normals), float(mu), int(num_edges))  # (n, m, d)
+    p = jnp.asarray(_normalize(points, center, radius, fill), jnp.float64)
+    edges = cone_edges(jnp.asarray(normals, jnp.float64), float(mu), int(num_edges))  # (n, m, d)
     prim = primitive_wrenches(p, edges)  # (n, m, D), torques about the centre
     rng = np.random.default_rng(seed)
     # Gamma(k) weights (a Dirichlet direction), k log-uniform per sample: small k gives a few dominant
@@ -399,7 +414,7 @@ def _random_axes(points, normals, mu, num_edges, samples, seed, concentration, b
         weights = _balancing_weights(np.asarray(prim).reshape(-1, prim.shape[-1]).T).reshape(shape[1:])
         count = int(round(balanced * shape[0]))
         coef[:count] *= weights * (coef.shape[1] * coef.shape[2])
-    coef = jnp.asarray(coef)
+    coef = jnp.asarray(coef, jnp.float64)
     wrench = jnp.einsum("sij,ijk->sk", coef, prim)  # eq. (7)
     axis = jax.vmap(central_axis)(wrench)  # eq. (10)
     return (np.asarray(axis.point), np.asarray(axis.direction), np.asarray(axis.pure_torque))
@@ -543,15 +558,16 @@ def sphere_pair_hits(entry, exit, bands: int = 3) -> np.ndarray:
 
 
 def _primitive_matrix(points, normals, mu, num_edges, center, radius, fill):
-    """``(D, K)`` primitive wrenches of the normalized grasp, torques about its centre."""
+    """``(D, K)`` primitive wrenches of the normalized grasp, torques about its centre (float64)."""
     import jax.numpy as jnp
 
     from ._cones import cone_edges
     from ._wrench import primitive_wrenches
 
-    p = jnp.asarray(_normalize(points, center, radius, fill))
-    prim = primitive_wrenches(p, cone_edges(jnp.asarray(normals), float(mu), int(num_edges)))
-    return np.asarray(prim, float).reshape(-1, prim.shape[-1]).T
+    with _float64():
+        p = jnp.asarray(_normalize(points, center, radius, fill), jnp.float64)
+        prim = primitive_wrenches(p, cone_edges(jnp.asarray(normals, jnp.float64), float(mu), int(num_edges)))
+        return np.asarray(prim, float).reshape(-1, prim.shape[-1]).T
 
 
 def _in_cone(prim, target, extra=None, tol=1e-9) -> bool:
