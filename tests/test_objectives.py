@@ -113,10 +113,10 @@ def _finite_difference(f, x, h=1e-6):
     return g
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _value_and_grad(kind, d):
     """Batched value and gradient in points and normals, compiled once per objective."""
-    one = lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, np.zeros(d), 1.0)[0]  # noqa: E731
+    one = lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, np.zeros(d), 1.0)[0]
     return jax.jit(jax.vmap(jax.value_and_grad(one, argnums=(0, 1))))
 
 
@@ -170,7 +170,7 @@ def test_min_weight_is_differentiable(sphere_set):
     assert np.isfinite(np.asarray(g)).all()
     fc = np.flatnonzero(np.asarray(gj.min_weight(p[:20], nr[:20], mu=MU, num_edges=M)) > 1e-4)
     i = int(fc[0])
-    f = lambda x: float(gj.min_weight(x, nr[i], mu=MU, num_edges=M))  # noqa: E731
+    f = lambda x: float(gj.min_weight(x, nr[i], mu=MU, num_edges=M))
     fd = _finite_difference(f, p[i])
     np.testing.assert_allclose(np.asarray(g[i]), fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
