@@ -443,7 +443,8 @@ def main():
         f"sampled grasps. Sampling rounds of {args.sample_round:,} grasps uniform by area. 'median Q best "
         f"{TOP}': over the best {TOP} distinct force-closure grasps (grid of {args.distinct_tol:g} object "
         "radii; a count in parentheses where fewer were found). 'FC fraction' is of the starts (of the samples "
-        "for sampling; of the refined starts for refine, whose 'grasps / starts' reads samples + starts). "
+        "for sampling; of the refined starts for refine, whose 'grasps / starts' reads samples + starts, and "
+        "whose Q and distinct columns pool its sampled and refined grasps: what the user holds at the end). "
         "Every verdict and Q is `gj.evaluate`'s. 'warm-up s': compile + one round, not in the budget. "
         "Timings come from a 2-core CPU shared with other work: compare within this run only.\n")
     lines.append(table(header, rows))
