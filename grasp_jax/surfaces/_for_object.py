@@ -5,7 +5,7 @@ from __future__ import annotations
 from . import _analytic, _simplicial
 
 #: default crease angle (degrees) of smooth normals: sharper edges stay sharp
-CREASE_ANGLE = 30.0
+CREASE_ANGLE = 45.0
 
 
 def for_object(obj, *, normals: str = "smooth", crease_angle: float = CREASE_ANGLE,

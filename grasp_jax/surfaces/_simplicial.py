@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
-import trimesh
 
 from ._base import Contact
 from ._util import check_count, check_one, host_points, jit_method, pytree, tangent, unit
@@ -190,7 +189,7 @@ def _clean(b):
 
 
 def from_simplices(vertices, faces, normals, *, center, scale: float, normal_kind: str = "smooth",
-                   crease_angle: float = 30.0, max_crossings: int = 32) -> SimplicialSurface:
+                   crease_angle: float = 45.0, max_crossings: int = 32) -> SimplicialSurface:
     """Precompute a :class:`SimplicialSurface` on the host.
 
     Args:
@@ -348,7 +347,7 @@ def _closest_on_triangles(corners: np.ndarray, vertices: np.ndarray,
                           points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closest point on triangles ``corners: (F, 3, 3)`` to each of ``points: (n, 3)``: face index
     and barycentrics ``(n, 3)``. Candidates: triangles whose bounding ball is within the distance
-    to the nearest vertex (an upper bound), found with KD-trees; exact distances by trimesh."""
+    to the nearest vertex (an upper bound), found with KD-trees; then exact distances."""
     near, _ = scipy.spatial.cKDTree(vertices).query(points)
     centroid = corners.mean(1)
     reach = np.linalg.norm(corners - centroid[:, None], axis=2).max(1)
@@ -356,24 +355,59 @@ def _closest_on_triangles(corners: np.ndarray, vertices: np.ndarray,
     count = np.array([len(c) for c in lists])
     tri = np.concatenate([np.asarray(c, dtype=np.int64) for c in lists])
     who = np.repeat(np.arange(len(points)), count)
-    face, closest = np.zeros(len(points), np.int64), np.zeros_like(points)
+    dist, bary = np.empty(len(tri)), np.empty((len(tri), 3))
     step = _CHUNK // 8
-    dist = np.empty(len(tri))
-    pts = np.empty((len(tri), 3))
     for lo in range(0, len(tri), step):
         sl = slice(lo, lo + step)
-        pts[sl] = trimesh.triangles.closest_point(corners[tri[sl]], points[who[sl]])
-        dist[sl] = np.linalg.norm(pts[sl] - points[who[sl]], axis=1)
+        bary[sl] = _triangle_barycentrics(corners[tri[sl]], points[who[sl]])
+        closest = np.einsum("ni,nij->nj", bary[sl], corners[tri[sl]])
+        dist[sl] = np.linalg.norm(closest - points[who[sl]], axis=1)
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     best = first + np.array([np.argmin(dist[s:s + c]) for s, c in zip(first, count)])
-    face, closest = tri[best], pts[best]
-    b = trimesh.triangles.points_to_barycentric(corners[face], closest)
-    b = np.clip(b, 0.0, None)
-    b /= b.sum(1, keepdims=True)
-    return face, b
+    b = np.clip(bary[best], 0.0, None)
+    return tri[best], b / b.sum(1, keepdims=True)
 
 
-def for_mesh(obj, *, normals: str = "smooth", crease_angle: float = 30.0,
+def _triangle_barycentrics(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Barycentrics ``(n, 3)`` of the closest point of each triangle ``tri: (n, 3, 3)`` to the
+    matching ``p: (n, 3)`` (Ericson, Real-Time Collision Detection 5.1.5: Voronoi regions of the
+    corners, edges and face)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac = b - a, c - a
+
+    def dot(x, y):
+        return np.einsum("ij,ij->i", x, y)
+
+    d1, d2 = dot(ab, p - a), dot(ac, p - a)
+    d3, d4 = dot(ab, p - b), dot(ac, p - b)
+    d5, d6 = dot(ab, p - c), dot(ac, p - c)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        total = va + vb + vc
+        v, w = vb / total, vc / total
+        face = np.stack([1 - v - w, v, w], 1)
+        t = d1 / (d1 - d3)
+        on_ab = np.stack([1 - t, t, 0 * t], 1)
+        t = d2 / (d2 - d6)
+        on_ac = np.stack([1 - t, 0 * t, t], 1)
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        on_bc = np.stack([0 * t, 1 - t, t], 1)
+    eye = np.eye(3)
+    cases = [
+        ((d1 <= 0) & (d2 <= 0), np.broadcast_to(eye[0], face.shape)),
+        ((d3 >= 0) & (d4 <= d3), np.broadcast_to(eye[1], face.shape)),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), on_ab),
+        ((d6 >= 0) & (d5 <= d6), np.broadcast_to(eye[2], face.shape)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), on_ac),
+        ((va <= 0) & (d4 >= d3) & (d5 >= d6), on_bc),
+    ]
+    out = face
+    for where, value in cases[::-1]:  # the first matching region wins
+        out = np.where(where[:, None], value, out)
+    return np.nan_to_num(out, nan=1.0 / 3.0)
+
+
+def for_mesh(obj, *, normals: str = "smooth", crease_angle: float = 45.0,
              max_crossings: int = 32) -> SimplicialSurface:
     """The surface of a :class:`grasp_jax.objects.Mesh` (or any object with a trimesh ``.mesh``,
     ``.center`` and ``.radius``)."""
@@ -384,7 +418,7 @@ def for_mesh(obj, *, normals: str = "smooth", crease_angle: float = 30.0,
                           max_crossings=max_crossings)
 
 
-def for_polygon(obj, *, normals: str = "smooth", crease_angle: float = 30.0,
+def for_polygon(obj, *, normals: str = "smooth", crease_angle: float = 45.0,
                 max_crossings: int = 32) -> SimplicialSurface:
     """The boundary of a :class:`grasp_jax.objects.Polygon`: its rings' edges, in the order and
     with the outward normals of the polygon's own facets."""
