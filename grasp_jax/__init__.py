@@ -19,6 +19,7 @@ from ._baseline import ferrari_canny as ferrari_canny
 from ._cones import cone_edges as _cone_edges  # noqa: F401
 from ._lp import Status as Status
 from ._objectives import OBJECTIVES as OBJECTIVES
+from ._objectives import objective as objective
 from ._optimize import EndReason as EndReason
 from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import optimize as optimize
@@ -42,4 +43,5 @@ __all__ = [
     "OptimizeResult",
     "EndReason",
     "OBJECTIVES",
+    "objective",
 ]

@@ -40,6 +40,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ._api import _bind, _check_common
+from ._batch import map_grasps
 from ._closure import (
     SHIFT,
     _exact_torque_2d,
@@ -48,8 +50,9 @@ from ._closure import (
     quality_lp,
 )
 from ._cones import cone_edges, safe_normalize
-from ._constants import tolerances
+from ._constants import DEFAULT_NUM_EDGES, tolerances
 from ._lp import Status, optimal_value, solve
+from ._validate import check_scalar
 from ._wrench import cross, primitive_wrenches
 
 #: Objectives :func:`objective_one` knows, in the order of the module docstring.
@@ -163,3 +166,51 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
 def is_positive(value, dtype) -> jax.Array:
     """Whether an objective value counts as force-closure (above the margin tolerance)."""
     return value > tolerances(dtype).margin
+
+
+# ---------------------------------------------------------------------------------------------
+# The batched public function.
+
+
+def _objective_single(points, normals, shared, *, num_edges, kind, iterations):
+    mu, center, scale = shared
+    return objective_one(points, normals, mu, num_edges, kind, center, scale, iterations)[0]
+
+
+def objective(
+    points,
+    normals,
+    *,
+    mu,
+    kind: str = "closure",
+    num_edges: int = DEFAULT_NUM_EDGES,
+    center=None,
+    scale: float = 1.0,
+    iterations: int | None = None,
+):
+    """An optimizer's objective (larger is better) for a batch of grasps, differentiable in
+    ``points`` and ``normals`` (``jax.grad``, ``jit``, ``vmap``); see the module docstring.
+
+    Args:
+        points, normals: ``(..., n, d)``, normals outward; ``c_1`` is contact 0.
+        mu, num_edges, iterations: as :func:`grasp_jax.evaluate`.
+        kind: one of :data:`OBJECTIVES`.
+        center: ``(d,)`` the object's centre (default the origin) and ``scale`` its radius: torques
+            of ``"min_weight"`` and the DFC energies are taken about ``center`` in units of ``scale``.
+
+    Returns:
+        ``(...)`` float. For ``"closure"``, ``"closure_any"`` and ``"min_weight"``: > 0 exactly
+        when the grasp is force-closure.
+    """
+    if kind not in OBJECTIVES:
+        raise ValueError(f"kind must be one of {', '.join(map(repr, OBJECTIVES))}; got {kind!r}")
+    points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None)
+    scale = check_scalar("scale", scale)
+    d = points.shape[-1]
+    with scope:
+        center = jnp.zeros(d, points.dtype) if center is None else jnp.asarray(center, points.dtype)
+        if center.shape != (d,):
+            raise ValueError(f"center must have shape ({d},); got {center.shape}")
+        fn = _bind(_objective_single, num_edges=num_edges, kind=kind, iterations=iterations)
+        shared = (jnp.asarray(mu, points.dtype), center, jnp.asarray(scale, points.dtype))
+        return map_grasps(fn, (points, normals), shared, batch)

@@ -188,3 +188,14 @@ def test_objectives_are_finite_on_degenerate_grasps():
             assert np.isfinite(np.asarray(gp)).all() and np.isfinite(np.asarray(gn)).all(), kind
             if kind in ("closure", "closure_any", "min_weight") and len(p) == 2:
                 assert np.all(np.asarray(v) <= 1e-7), kind
+
+
+def test_public_objective_batches_and_differentiates(sphere_set):
+    p, nr, ev = sphere_set
+    value = np.asarray(gj.objective(p[:40].reshape(4, 10, 4, 3), nr[:40].reshape(4, 10, 4, 3), mu=MU,
+                                    num_edges=M)).reshape(40)
+    np.testing.assert_allclose(value, np.asarray(_objective("closure", 3)(p[:40], nr[:40])), atol=1e-12)
+    g = jax.grad(lambda x: gj.objective(x, nr[:8], mu=MU, num_edges=M, kind="min_weight").sum())(jnp.asarray(p[:8]))
+    assert g.shape == (8, 4, 3) and np.isfinite(np.asarray(g)).all()
+    with pytest.raises(ValueError, match="kind must be one of"):
+        gj.objective(p, nr, mu=MU, kind="epsilon")
