@@ -617,7 +617,9 @@ def _cmd_optimize(args) -> int:
     mu = args.mu if args.mu is not None else float(meta_in.get("mu", DEFAULT_MU))
     edges = args.edges if args.edges is not None else int(meta_in.get("edges", 8))
     _setup(args)
-    holes = args.hole or (list(meta_in.get("object_holes") or ()) if args.object == meta_in.get("object") else [])
+    stored = meta_in.get("object")
+    same = stored is not None and _same_object(args.object, stored, meta_in)
+    holes = args.hole or (list(meta_in.get("object_holes") or ()) if same else [])
     obj = _load_object(args.object, holes)
     init, starts = None, args.starts
     if src is not None:
