@@ -869,6 +869,7 @@ def plot_optimization(quality_history, *, sampled_quality=None, grasps=(), geome
             side.hist(q, bins=np.linspace(0.0, top_value * 1.02, 41), orientation="horizontal",
                       color=_CONE, alpha=0.8)
             side.set_xscale("log")
+            side.set_xlim(left=0.7)  # bins of one grasp stay visible
             for value, style, what in ((np.median(q), "--", "median"), (q.max(), ":", "best")):
                 ax.axhline(value, color=_CONE, ls=style, lw=1.5,
                            label=f"{what} of {q.size:,} random grasps")
