@@ -466,6 +466,32 @@ def test_vmap_equals_a_python_loop(name):
             assert np.allclose(p, charts[0][i], atol=1e-15) and np.allclose(n, charts[1][i], atol=1e-14)
 
 
+@pytest.mark.parametrize("name", ["box", "cylinder", "holes", "icosphere"])
+def test_non_finite_step_leaves_the_contact_in_place(name):
+    _, surface = build(name)
+    with float64_scope():
+        c = start(name)
+        v = jnp.full((N, surface.dim), jnp.nan).at[:, 0].set(0.01)
+        moved = RETRACT(surface, c, v)
+        assert (moved.face == c.face).all()
+        assert np.allclose(EMBED(surface, moved)[0], EMBED(surface, c)[0], rtol=0, atol=1e-15)
+
+
+def test_walk_reports_crossings_and_what_was_left():
+    obj = objects.star()
+    with float64_scope():
+        c = Contact(jnp.int32(0), jnp.array([0.5, 0.5]))
+        normal = jnp.asarray(build("star")[1].normals)[0]
+        along = 3.0 * jnp.array([-normal[1], normal[0]])
+        edge = np.linalg.norm(obj.rings[0][1] - obj.rings[0][0])
+        crossings = int(np.ceil((3.0 - edge / 2) / edge))  # vertices passed from the edge's middle
+        for cap, left in ((32, False), (3, True)):
+            surface = surfaces.for_object(obj, max_crossings=cap)
+            moved, passes, rest = surface.walk(c, along)
+            assert int(passes) == (crossings + 1 if not left else 3) and (float(rest) > 0) == left
+            assert distance_from_surface(obj, np.asarray(surface.embed(moved)[0])[None])[0] < 1e-12
+
+
 def test_one_contact_per_call():
     _, surface = build("quad")
     with float64_scope():

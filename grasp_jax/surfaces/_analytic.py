@@ -113,10 +113,12 @@ class _Analytic:
 
     @jit_method()
     def retract(self, contact: Contact, v: jax.Array) -> Contact:
-        """One contact moved by the tangent part of ``v: (3,)`` and mapped onto the surface."""
+        """One contact moved by the tangent part of ``v: (3,)`` and mapped onto the surface (a
+        non-finite ``v`` leaves it in place)."""
         check_one("retract", contact, 3, v)
         p = jnp.asarray(contact.coords)
         v = jnp.asarray(v, p.dtype)
+        v = jnp.where(jnp.isfinite(v).all(), v, 0.0)  # a non-finite step leaves the contact in place
         return Contact(jnp.asarray(contact.face), self._move(p, tangent(v, self._map(p)[1])))
 
     def _move(self, p, w):

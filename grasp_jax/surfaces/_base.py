@@ -18,6 +18,13 @@ surface around ``c`` by an ambient displacement ``v: (d,)`` (only its tangent pa
 objective's Riemannian gradient, in ambient coordinates. ``retract(c, v)`` moves the contact by
 the tangent part of ``v`` along the surface (across edges onto neighbouring faces, around
 polygon corners). Optax updates are ambient ``(n, d)`` arrays, so any optax transformation works.
+
+On a simplicial surface ``chart`` moves in the plane of the contact's face, so the Riemannian
+gradient is tangent to the face (not to the interpolated normal); ``retract`` takes the part of
+``v`` in that plane. A surface's leaves are NumPy arrays (float64 vertices etc., which take the
+caller's precision when traced); ``jax.device_put(surface)`` once, inside the precision scope the
+optimizer runs in, avoids copying them to the device on every call of a compiled step. The
+methods are compiled once per surface structure, so calling them outside ``jit`` is cheap too.
 """
 
 from __future__ import annotations

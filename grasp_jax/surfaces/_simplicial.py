@@ -103,14 +103,25 @@ class SimplicialSurface:
     @jit_method()
     def retract(self, contact: Contact, v: jax.Array) -> Contact:
         """One contact moved by the tangent part of ``v: (d,)`` along the surface, across up to
-        ``max_crossings`` edges (2D: corners)."""
+        ``max_crossings`` edges (2D: corners); what is left of ``v`` after that many is dropped.
+        A non-finite ``v`` leaves the contact where it is."""
         check_one("retract", contact, self.dim, v)
+        return self.walk(contact, v)[0]
+
+    @jit_method()
+    def walk(self, contact: Contact, v: jax.Array) -> tuple[Contact, jax.Array, jax.Array]:
+        """``retract`` with diagnostics: ``(contact, crossings () int32, rest () float)``, the
+        number of loop passes (faces entered, plus one) and the length of the displacement left
+        when ``max_crossings`` ran out (0 otherwise, or at an open boundary)."""
+        check_one("walk", contact, self.dim, v)
         f0, b0 = jnp.asarray(contact.face), jnp.asarray(contact.coords)
         dtype = b0.dtype
         grads = jnp.asarray(self.grads, dtype)
         faces, neighbors = jnp.asarray(self.faces), jnp.asarray(self.neighbors)
         rotations = jnp.asarray(self.rotations, dtype)
-        w0 = tangent(jnp.asarray(v, dtype), jnp.asarray(self.normals, dtype)[f0])
+        v = jnp.asarray(v, dtype)
+        v = jnp.where(jnp.isfinite(v).all(), v, 0.0)  # a non-finite step leaves the contact in place
+        w0 = tangent(v, jnp.asarray(self.normals, dtype)[f0])
         eps = jnp.finfo(dtype).eps
 
         def moving(state):
@@ -139,8 +150,8 @@ class SimplicialSurface:
                     ~over)
 
         state = (f0, _clean(b0), w0, jnp.zeros((), jnp.int32), jnp.zeros((), bool))
-        f, b, _, _, _ = jax.lax.while_loop(moving, cross, state)
-        return Contact(f.astype(f0.dtype), b)
+        f, b, w, k, _ = jax.lax.while_loop(moving, cross, state)
+        return Contact(f.astype(f0.dtype), b), k, jnp.sqrt(jnp.sum(w * w))
 
     @jit_method(static=("count",))
     def sample(self, key: jax.Array, count: int) -> Contact:
