@@ -4,67 +4,109 @@ Two paths:
 
 * **traced** (the caller is inside ``jit``, ``grad`` or ``vmap``): a plain ``jax.vmap`` over the
   flattened batch, so the result composes with the caller's transformations.
-* **concrete** (NumPy or JAX arrays): the batch is cut into fixed-size chunks, each scored by one
-  compiled function (``lax.map`` over vmapped blocks of :data:`BLOCK` grasps, which keeps the
-  working set in cache), optionally sharded over local devices. Memory stays flat however large
-  the batch, and a chunk size compiles once.
+* **concrete** (NumPy or JAX arrays): the batch is cut into chunks of one fixed size, each scored
+  by one compiled program (a loop over vmapped blocks of :data:`BLOCK` grasps, which keeps the
+  working set in cache, run over the blocks that hold real grasps only), sharded over the local
+  devices. A batch of any size, 1 or 10^7 grasps, runs the same program: one compilation per
+  grasp shape, dtype and device set (two with a :class:`Retry` pass), at most a few seconds on a
+  CPU, kept between processes by the persistent cache of :mod:`grasp_jax._cache`. Memory stays
+  flat however large the batch.
+
+Devices. Several local devices (on a CPU: ``XLA_FLAGS=--xla_force_host_platform_device_count``)
+each score their slice of every chunk; the programs use no collective, and each chunk's result
+goes to the host at once, so the devices never wait for each other. One exception: a program
+that calls LAPACK (``jnp.linalg.eigh`` and the like; in grasp_jax the rank test of the 6-D
+min-weight LP) runs on one device. jaxlib's CPU LAPACK kernels split a batch over XLA's intra-op
+thread pool and block their pool thread until the pieces are done; with one device per core,
+every pool thread can be such a waiting kernel, and nothing is left to run the pieces: the
+program hangs for ever (seen with ``min_weight`` on two CPU devices). See :func:`_blocking_calls`.
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-import functools
+import re
+import threading
 from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _cache
 from ._validate import is_traced
 
 #: Grasps per vmapped block inside a compiled chunk on a CPU (cache-sized; measured best of
 #: 64..1024 for n = 4, m = 8).
 BLOCK = 256
-#: Grasps per compiled call on the concrete path, on a CPU.
+#: Grasps per compiled call on the concrete path, on a CPU (all devices together).
 CHUNK = 16384
-#: On an accelerator a chunk is one vmapped block (no ``lax.map``): a GPU wants wide batches.
+#: On an accelerator a chunk is one vmapped block per device: a GPU wants wide batches.
 ACCELERATOR_CHUNK = 131072
+#: The retry pass scores the unfinished grasps ``chunk / RETRY_FRACTION`` at a time.
+RETRY_FRACTION = 32
+
+#: XLA options of the float64 chunk programs, by platform. On a CPU XLA's newer fusion emitters
+#: spend twice the compile time on the interior-point loop (measured 7-8 s against 4-5 s of CPU
+#: time for a 4-finger first pass), for no measurable speed; the classic emitters are used. With
+#: them, 128-bit vectors keep every grasp's result independent of its slot in the block (with
+#: wider ones the last slot of a block differed in the last bit). float32 programs keep XLA's
+#: defaults: with the classic emitters a float32 Q moved by 3e-4 (against 3e-5) from float64.
+COMPILER_OPTIONS = {"cpu": {"xla_cpu_use_fusion_emitters": False, "xla_cpu_prefer_vector_width": 128}}
+
+#: Programs the concrete path has made in this process: ``"traced"`` (a program was traced and
+#: lowered), ``"compiled"`` (XLA compiled it), ``"loaded"`` (taken from the persistent cache) and
+#: ``"one_device"`` (a LAPACK program kept to one device). Tests count compilations with it.
+STATS: collections.Counter = collections.Counter()
 
 
 def _sizes(devices: tuple, chunk: int | None) -> tuple[int, int]:
-    """``(block, chunk)`` for the devices' platform."""
+    """``(block, chunk)`` for the devices' platform: grasps per vmapped block (per device) and per
+    compiled call (all devices together)."""
     if devices[0].platform == "cpu":
         return BLOCK, chunk or CHUNK
     chunk = chunk or ACCELERATOR_CHUNK
-    return chunk, chunk
+    return max(1, chunk // len(devices)), chunk
 
 
-def _bucket(n: int, chunk: int, smallest: int = 256) -> int:
-    """Padded size for a batch of ``n`` grasps: a power of two from ``smallest`` up to ``chunk``."""
-    size = smallest
-    while size < n and size < chunk:
-        size *= 2
-    return min(size, chunk) if n <= chunk else chunk
+def _local_size(chunk: int, ndev: int, block: int) -> int:
+    """Grasps per device in one compiled call: ``chunk / ndev`` rounded down to whole blocks, at
+    least one block."""
+    return max(block, (chunk // ndev) // block * block)
+
+
+def _retry_sizes(devices: tuple, chunk: int, block: int) -> tuple[int, int]:
+    """``(grasps per device, block)`` of the retry pass's program: ``chunk / RETRY_FRACTION``."""
+    cap = max(1, chunk // RETRY_FRACTION)
+    if devices[0].platform == "cpu":
+        return _local_size(cap, len(devices), block), block
+    local = max(1, cap // len(devices))
+    return local, local
 
 
 def _blocked(fn: Callable, num_batched: int, size: int, block: int) -> Callable:
-    """``lax.map`` over blocks of ``block`` grasps of ``vmap(fn)``, for ``size`` grasps of which
-    the first ``count`` are real: blocks of padding only are skipped (zeros come out)."""
+    """``vmap(fn)`` over ``size`` grasps, ``block`` at a time, of which the first ``count`` are
+    real: a loop over the blocks that hold real grasps; the others come out as zeros."""
     block = min(block, size)
     in_axes = (0,) * num_batched + (None,)
+    # One jitted object, so that its trace (for the output shapes, then in the loop) is reused.
+    scored = jax.jit(lambda xs, shared: jax.vmap(fn, in_axes=in_axes)(*xs, shared))
 
     def run(batched, shared, count):
-        blocks = jax.tree_util.tree_map(lambda a: a.reshape((size // block, block) + a.shape[1:]), batched)
-        scored = lambda xs: jax.vmap(fn, in_axes=in_axes)(*xs, shared)  # noqa: E731
-        shapes = jax.eval_shape(scored, jax.tree_util.tree_map(lambda a: a[0], blocks))
+        first = jax.tree_util.tree_map(lambda a: a[:block], batched)
+        shapes = jax.eval_shape(scored, first, shared)
+        out = jax.tree_util.tree_map(lambda s: jnp.zeros((size,) + s.shape[1:], s.dtype), shapes)
 
-        def one_block(args):
-            k, xs = args
-            skip = lambda xs: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)  # noqa: E731
-            return jax.lax.cond(k * block < count, scored, skip, xs)
+        def body(k, out):
+            xs = jax.tree_util.tree_map(lambda a: jax.lax.dynamic_slice_in_dim(a, k * block, block), batched)
+            res = scored(xs, shared)
+            return jax.tree_util.tree_map(
+                lambda o, r: jax.lax.dynamic_update_slice_in_dim(o, r, k * block, 0), out, res
+            )
 
-        out = jax.lax.map(one_block, (jnp.arange(size // block), blocks))
-        return jax.tree_util.tree_map(lambda a: a.reshape((size,) + a.shape[2:]), out)
+        real_blocks = (jnp.asarray(count, jnp.int32) + block - 1) // block
+        return jax.lax.fori_loop(0, real_blocks, body, out)
 
     return run
 
@@ -75,79 +117,133 @@ class Retry:
 
     A vmapped interior-point loop runs until the *slowest* problem of its block has converged,
     and a few problems in a hundred need twice the median iteration count: most of a block's
-    work would be spent on them. So the chunk is first scored by a function with a small
-    iteration budget; the grasps for which ``unfinished(out)`` holds are gathered, bad ones first,
-    into blocks of a fraction of the chunk and scored again by ``fn`` with the full budget, and
-    their results are scattered back. Everything happens inside the one compiled chunk function.
+    work would be spent on them. So the batch is first scored by a function with a small
+    iteration budget; the grasps for which ``unfinished(out)`` holds are gathered into chunks of
+    ``chunk / RETRY_FRACTION`` and scored again by ``fn`` with the full budget, and their results
+    replace the first ones. The two passes are two compiled programs, each of one fixed size.
 
     Attributes:
         fn: the single-grasp function with the full budget.
-        unfinished: ``out -> (batch,) bool`` on the first pass's batched output.
+        unfinished: ``out -> (batch,) bool`` on the first pass's output, as NumPy arrays.
     """
 
     fn: Callable
     unfinished: Callable
 
 
-#: The second pass scores blocks of ``size / RETRY_FRACTION`` gathered grasps at a time.
-RETRY_FRACTION = 32
+# ---------------------------------------------------------------------------------------------
+# Compiled programs.
+
+#: Custom calls that are no kernels (sharding annotations of ``shard_map``).
+_ANNOTATIONS = frozenset({"Sharding", "SPMDFullToShardShape", "SPMDShardToFullShape"})
 
 
-def _with_retry(first: Callable, second: Callable, unfinished: Callable, size: int, cap: int) -> Callable:
-    """``first`` on ``size`` grasps, then ``second`` on the unfinished ones, ``cap`` at a time."""
+def _blocking_calls(lowered_text: str) -> set[str]:
+    """Custom-call targets of a lowered program that may wait on XLA's CPU thread pool.
 
-    def run(batched, shared, count):
-        out = first(batched, shared, count)
-        bad = unfinished(out) & (jnp.arange(size) < count)
-        num_bad = jnp.sum(bad)
-        order = jnp.argsort(~bad, stable=True)  # unfinished grasps first
-        rounds = (num_bad + cap - 1) // cap
-
-        def redo(r, out):
-            idx = jax.lax.dynamic_slice(order, (r * cap,), (cap,))
-            valid = r * cap + jnp.arange(cap) < num_bad
-            sub = jax.tree_util.tree_map(lambda a: a[idx], batched)
-            res = second(sub, shared, jnp.minimum(cap, num_bad - r * cap))
-
-            def put(old, new):
-                mask = valid.reshape((cap,) + (1,) * (new.ndim - 1))
-                return old.at[idx].set(jnp.where(mask, new, old[idx]))
-
-            return jax.tree_util.tree_map(put, out, res)
-
-        return jax.lax.fori_loop(0, rounds, redo, out)
-
-    return run
+    jaxlib's LAPACK kernels (``lapack_*``: eigh, cholesky, lu, qr, svd, triangular solves, ...)
+    divide a batch into pieces, schedule them on the intra-op pool and wait for them inside the
+    pool thread that runs the kernel (jaxlib 0.10, ``ParallelBatchMap``). Run on as many devices
+    as the pool has threads, each device's kernel takes one pool thread and waits, and the pieces
+    are never run. Any custom call other than a sharding annotation is treated as such a kernel.
+    """
+    return set(re.findall(r"custom_call @([\w.$-]+)", lowered_text)) - _ANNOTATIONS
 
 
-def _local(fn: Callable, num_batched: int, size: int, block: int, retry: Retry | None) -> Callable:
-    """The scorer of ``size`` grasps on one device."""
-    if retry is None:
-        return _blocked(fn, num_batched, size, block)
-    cap = max(block, (size // RETRY_FRACTION) // block * block)
-    cap = min(cap, size)
-    return _with_retry(
-        _blocked(fn, num_batched, size, block),
-        _blocked(retry.fn, num_batched, cap, block),
-        retry.unfinished,
-        size,
-        cap,
-    )
+@dataclasses.dataclass
+class _Program:
+    """One compiled chunk program and the devices it runs on."""
+
+    run: Callable
+    devices: tuple  # () for the default device
+    size: int  # grasps per call, all devices together
+
+    @property
+    def ndev(self) -> int:
+        return max(1, len(self.devices))
 
 
-@functools.lru_cache(maxsize=None)
-def _compiled(fn: Callable, num_batched: int, size: int, block: int, devices: tuple, retry: Retry | None) -> Callable:
-    """Compiled scorer of ``size`` grasps, sharded over ``devices`` when there are several."""
-    if len(devices) <= 1:
-        return jax.jit(_local(fn, num_batched, size, block, retry))
-    P = jax.sharding.PartitionSpec
-    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    local = _local(fn, num_batched, size // len(devices), block, retry)
-    sharded = jax.shard_map(
-        lambda batched, shared, counts: local(batched, shared, counts[0]),
-        mesh=mesh, in_specs=(P("batch"), P(), P("batch")), out_specs=P("batch"), check_vma=False,
-    )
-    return jax.jit(sharded)
+_PROGRAMS: dict = {}
+_LOCK = threading.Lock()
+#: Keys whose programs call LAPACK: kept to one device.
+_ONE_DEVICE: set = set()
+
+
+def _aval_key(tree) -> tuple:
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return treedef, tuple(jax.typeof(x) for x in leaves)
+
+
+def _x64() -> bool:
+    return jax.dtypes.canonicalize_dtype(np.float64) == np.float64
+
+
+def _program(fn: Callable, grasp_specs: tuple, shared, local: int, block: int, devices: tuple) -> _Program:
+    """The compiled program scoring ``local`` grasps per device with ``fn`` (cached)."""
+    key = (fn, grasp_specs, _aval_key(shared), local, block, devices, _x64())
+    with _LOCK:
+        prog = _PROGRAMS.get(key)
+        if prog is None:
+            prog = _build(fn, grasp_specs, shared, local, block, devices, key)
+            _PROGRAMS[key] = prog
+    return prog
+
+
+def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
+    if len(devices) > 1 and key not in _ONE_DEVICE:
+        P = jax.sharding.PartitionSpec
+        mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+        body = _blocked(fn, len(grasp_specs), local, block)
+        sharded = jax.shard_map(
+            lambda batched, shared, counts: body(batched, shared, counts[0]),
+            mesh=mesh, in_specs=(P("batch"), P(), P("batch")), out_specs=P("batch"), check_vma=False,
+        )
+        size = local * len(devices)
+        counts = jax.ShapeDtypeStruct((len(devices),), jnp.int32)
+        named = jax.sharding.NamedSharding
+        shardings = (named(mesh, P("batch")), named(mesh, P()), named(mesh, P("batch")))
+        program = jax.jit(sharded, in_shardings=shardings, out_shardings=named(mesh, P("batch")))
+        lowered = _lower(program, grasp_specs, size, shared, counts)
+        text = lowered.as_text()
+        if not _blocking_calls(text):
+            return _Program(_compile(lowered, text, devices, _options(devices[0].platform, grasp_specs)), devices, size)
+        _ONE_DEVICE.add(key)
+        STATS["one_device"] += 1
+    program = jax.jit(_blocked(fn, len(grasp_specs), local, block))
+    lowered = _lower(program, grasp_specs, local, shared, jax.ShapeDtypeStruct((), jnp.int32))
+    default = (jax.local_devices()[0],) if not devices else devices[:1]
+    options = _options(default[0].platform, grasp_specs)
+    return _Program(_compile(lowered, lowered.as_text(), default, options), (), local)
+
+
+def _lower(program, grasp_specs, size, shared, counts):
+    specs = tuple(jax.ShapeDtypeStruct((size,) + shape, dtype) for shape, dtype in grasp_specs)
+    STATS["traced"] += 1
+    return program.trace(specs, shared, counts).lower()
+
+
+def _options(platform: str, grasp_specs: tuple) -> dict:
+    """XLA options for a program on ``platform`` with per-grasp inputs ``grasp_specs``."""
+    if all(np.dtype(dtype) == np.float64 for _, dtype in grasp_specs):
+        return COMPILER_OPTIONS.get(platform, {})
+    return {}
+
+
+def _compile(lowered, text: str, devices: tuple, options: dict):
+    """``lowered`` compiled, or loaded from the persistent cache when it holds it."""
+    name = _cache.key(text, options, devices)
+    compiled = _cache.load(name, lowered, devices)
+    if compiled is not None:
+        STATS["loaded"] += 1
+        return compiled
+    compiled = lowered.compile(compiler_options=options)
+    STATS["compiled"] += 1
+    _cache.store(name, compiled)
+    return compiled
+
+
+# ---------------------------------------------------------------------------------------------
+# Running a batch.
 
 
 def _layout(start: int, stop: int, size: int, ndev: int) -> tuple[np.ndarray | None, np.ndarray]:
@@ -169,6 +265,52 @@ def _layout(start: int, stop: int, size: int, ndev: int) -> tuple[np.ndarray | N
     valid = (offset < per) & (source < stop)
     counts = valid.reshape(ndev, local).sum(axis=1).astype(np.int32)
     return np.where(valid, source, start), counts
+
+
+def _score(prog: _Program, flat: tuple, shared, index: np.ndarray | None, total: int, progress=None):
+    """Run ``prog`` over grasps ``index`` of ``flat`` (all ``total`` when ``None``), chunk by
+    chunk; returns the host (NumPy) results in order."""
+    size, ndev = prog.size, prog.ndev
+    local = size // ndev
+    outs = []
+    starts = range(0, total, size)
+    if progress is not None:
+        from tqdm.auto import tqdm
+
+        starts = tqdm(starts, total=len(starts), unit="chunk", desc=progress)
+    for start in starts:
+        stop = min(start + size, total)
+        source, counts = _layout(start, stop, size, ndev)
+        rows = np.arange(start, stop) if source is None else source
+        if index is not None:
+            rows = index[rows]
+        pieces = tuple(a[start:stop] if source is None and index is None else a[rows] for a in flat)
+        # To the host at once: indexing or concatenating arrays sharded over several CPU devices
+        # would run small cross-device programs between the chunks, whose collectives can wait
+        # on a thread pool that the chunks occupy (seen: a 40 s rendezvous timeout, then abort).
+        res = jax.device_get(prog.run(pieces, shared, counts if prog.devices else counts[0]))
+        if source is not None:
+            keep = np.flatnonzero(np.arange(size) % local < np.repeat(counts, local))
+            res = jax.tree_util.tree_map(lambda a, keep=keep: a[keep], res)
+        outs.append(res)
+    return outs[0] if len(outs) == 1 else jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *outs)
+
+
+def _check_devices(devices) -> tuple:
+    devices = tuple(devices)
+    if not devices:
+        raise ValueError("devices must name at least one device")
+    if len(set(devices)) != len(devices):
+        raise ValueError(f"devices must not repeat a device; got {devices}")
+    if len({d.platform for d in devices}) > 1:
+        raise ValueError(f"devices must be of one platform; got {sorted({d.platform for d in devices})}")
+    here = jax.process_index()
+    if any(d.process_index != here for d in devices):
+        raise ValueError(
+            "devices must be local to this process (jax.local_devices()); in a multi-process job "
+            "each process scores its own slice on its own devices"
+        )
+    return devices
 
 
 def map_grasps(
@@ -207,67 +349,64 @@ def map_grasps(
     traced = is_traced(*present, *jax.tree_util.tree_leaves(shared))
     if retry is not None and traced:
         fn, retry = retry.fn, None
-    if retry is not None:
-        missing = tuple(a is None for a in batched)
-        retry = Retry(_with_optional(retry.fn, missing), retry.unfinished)
+    missing = tuple(a is None for a in batched)
     total = int(np.prod(batch_shape, dtype=np.int64))
-    flat = tuple(
-        None if a is None else a.reshape((total,) + a.shape[len(batch_shape):]) for a in batched
-    )
-    call = _with_optional(fn, tuple(a is None for a in batched))
-    flat = tuple(a for a in flat if a is not None)
-
-    def unflatten(tree):
-        return jax.tree_util.tree_map(lambda a: a.reshape(batch_shape + a.shape[1:]), tree)
+    call = _with_optional(fn, missing)
+    lead = len(batch_shape)
+    flat = tuple(a.reshape((total,) + a.shape[lead:]) for a in batched if a is not None)
 
     if traced or total == 0:
         in_axes = (0,) * len(flat) + (None,)
         if total == 0:
             out = jax.eval_shape(lambda *xs: jax.vmap(call, in_axes=in_axes)(*xs), *flat, shared)
             return jax.tree_util.tree_map(lambda s: jnp.zeros(batch_shape + s.shape[1:], s.dtype), out)
-        return unflatten(jax.vmap(call, in_axes=in_axes)(*flat, shared))
+        out = jax.vmap(call, in_axes=in_axes)(*flat, shared)
+        return jax.tree_util.tree_map(lambda a: a.reshape(batch_shape + a.shape[1:]), out)
 
-    if devices is None:
-        devices = tuple(jax.local_devices())
+    devices = _check_devices(jax.local_devices() if devices is None else devices)
     ndev = len(devices)
     block, chunk = _sizes(devices, chunk)
-    size = _bucket(-(-total // ndev), max(chunk // ndev, BLOCK), min(BLOCK, block)) * ndev
-    run = _compiled(call, len(flat), size, block, tuple(devices) if ndev > 1 else (), retry)
-    starts = range(0, total, size)
-    if progress:
-        from tqdm.auto import tqdm
+    flat = tuple(np.asarray(a) for a in flat)
+    shared = jax.device_get(shared)  # small: to each device from the host, not from device 0
+    grasp_specs = tuple((a.shape[1:], a.dtype) for a in flat)
+    multi = devices if ndev > 1 else ()
+    first = _program(call, grasp_specs, shared, _local_size(chunk, ndev, block), block, multi)
+    desc = f"scoring {total:,} grasps" if progress else None
+    out = _score(first, flat, shared, None, total, desc)
+    if retry is not None:
+        again = np.flatnonzero(np.asarray(retry.unfinished(out)))
+        if again.size:
+            cap, cap_block = _retry_sizes(devices, chunk, block)
+            second = _program(_with_optional(retry.fn, missing), grasp_specs, shared, cap, cap_block, multi)
+            redo = _score(second, flat, shared, again, again.size)
 
-        starts = tqdm(starts, total=len(starts), unit="chunk", desc=f"scoring {total:,} grasps")
-    outs = []
-    for start in starts:
-        stop = min(start + size, total)
-        source, counts = _layout(start, stop, size, ndev)
-        if source is None:
-            pieces = tuple(a[start:stop] for a in flat)
-        else:
-            pieces = tuple(a[source] for a in flat)
-        # To the host at once: indexing or concatenating arrays sharded over several CPU devices
-        # would run small cross-device programs between the chunks, whose collectives can wait
-        # on a thread pool that the chunks occupy (seen: a 40 s rendezvous timeout, then abort).
-        res = jax.device_get(run(pieces, shared, counts if ndev > 1 else counts[0]))
-        if source is not None:
-            keep = np.flatnonzero(np.arange(size) % (size // ndev) < np.repeat(counts, size // ndev))
-            res = jax.tree_util.tree_map(lambda a, keep=keep: a[keep], res)
-        outs.append(res)
-    out = outs[0] if len(outs) == 1 else jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *outs)
-    return unflatten(jax.tree_util.tree_map(jnp.asarray, out))
+            def put(old, new):
+                old = np.array(old)  # device_get may hand out read-only arrays
+                old[again] = new
+                return old
+
+            out = jax.tree_util.tree_map(put, out, redo)
+    out = jax.tree_util.tree_map(lambda a: np.reshape(a, batch_shape + np.shape(a)[1:]), out)
+    return jax.tree_util.tree_map(jnp.asarray, out)
 
 
-@functools.lru_cache(maxsize=None)
+_OPTIONAL: dict = {}
+
+
 def _with_optional(fn: Callable, missing: tuple) -> Callable:
-    """Adapt ``fn`` so that ``None`` entries of the batched tuple are passed as ``None``."""
+    """Adapt ``fn`` so that ``None`` entries of the batched tuple are passed as ``None`` (one
+    stable adapter per ``(fn, missing)``, so that compiled programs are reused)."""
     if not any(missing):
         return fn
+    key = (fn, missing)
+    adapted = _OPTIONAL.get(key)
+    if adapted is None:
 
-    def call(*args):
-        *given, shared = args
-        it = iter(given)
-        full = [None if m else next(it) for m in missing]
-        return fn(*full, shared)
+        def adapted(*args):
+            *given, shared = args
+            it = iter(given)
+            full = [None if m else next(it) for m in missing]
+            return fn(*full, shared)
 
-    return call
+        adapted = _OPTIONAL.setdefault(key, adapted)
+    return adapted

@@ -114,26 +114,37 @@ def test_float32_inputs(batch):
 
 
 def test_chunks(monkeypatch):
-    """A batch that crosses the chunk size gives the same results as smaller calls. The chunk is
-    made small (256 = BLOCK, the smallest compiled size) so that no new shape is compiled."""
+    """A batch that crosses the chunk size gives the same results as smaller calls, bit for bit:
+    every call runs the one compiled program of its chunk size, whatever the batch size (here a
+    chunk of 256 = BLOCK, and the default chunk)."""
     assert _batch.CHUNK >= _batch.BLOCK == 256
     p, n = _batch_of(600, seed=2)
+    cuts = ((0, 100), (100, 356), (356, 600))
+
+    def pieces():
+        parts = [gj.evaluate(p[a:b], n[a:b], mu=MU) for a, b in cuts]
+        return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *parts)
+
     monkeypatch.setattr(api, "map_grasps", functools.partial(_batch.map_grasps, chunk=_batch.BLOCK))
     chunked = gj.evaluate(p, n, mu=MU, progress=True)
-    monkeypatch.undo()
-    pieces = [gj.evaluate(p[a:b], n[a:b], mu=MU) for a, b in ((0, 100), (100, 356), (356, 600))]
-    whole = jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *pieces)
     assert chunked.force_closure.shape == (600,)
-    _assert_same(chunked, whole)
+    _assert_same(chunked, pieces())
     # The padding of the last chunk copies its first grasp: no spill into real results.
     _assert_same(chunked[-1], gj.evaluate(p[-1], n[-1], mu=MU))
+    monkeypatch.undo()
+    whole = gj.evaluate(p, n, mu=MU)
+    _assert_same(whole, pieces())
+    # Two chunk sizes are two programs: the same verdicts, values equal within the LP tolerance.
+    for name in ("force_closure", "equilibrium", "torque_span", "quality_status", "torque_status"):
+        np.testing.assert_array_equal(np.asarray(getattr(whole, name)), np.asarray(getattr(chunked, name)))
+    np.testing.assert_allclose(np.asarray(whole.quality), np.asarray(chunked.quality), rtol=0, atol=1e-8)
 
 
-def test_bucket_sizes():
-    assert _batch._bucket(1, 16384) == 256
-    assert _batch._bucket(257, 16384) == 512
-    assert _batch._bucket(16384, 16384) == 16384
-    assert _batch._bucket(10**6, 16384) == 16384
+def test_chunk_sizes():
+    assert _batch._local_size(16384, 1, 256) == 16384
+    assert _batch._local_size(16384, 2, 256) == 8192
+    assert _batch._local_size(16384, 3, 256) == 5376  # whole blocks per device
+    assert _batch._local_size(100, 2, 256) == 256  # at least one block
 
 
 def test_zero_size_batch():
