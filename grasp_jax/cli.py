@@ -49,7 +49,8 @@ _NOTES = (
     "OBJECT is a built-in name ({builtins}) or a path to a mesh (.obj, .stl, .ply, ...) or a polygon "
     "(.csv of x,y vertices; --hole FILE.csv cuts a hole in it, once per hole).",
     "Result files (.npz or .parquet) hold points, normals, force_closure, quality, converged (and "
-    "epsilon, volume) per grasp plus the run's metadata; read them with "
+    "epsilon, volume) per grasp plus the run's metadata ('optimize' adds initial_points, objective, reason "
+    "and the per-step history and quality_history of every start); read them with "
     "grasp_jax.storage.read_results(path), numpy.load or pyarrow.",
     "Compiled programs are cached in ~/.cache/grasp_jax/xla (GRASP_JAX_CACHE=DIR moves it, "
     "GRASP_JAX_CACHE=off disables it).",
