@@ -29,10 +29,10 @@ budget (it always runs one), so its time lands within half a round of the budget
 kept after each round for the Q-vs-time curves are not.
 
 Tuning rule (the same for every row; nothing is set per object): ``--starts`` 256 per round (the
-smallest batch ``gj.optimize`` compiles: fewer cost the same), ``--steps`` and the default Adam
-learning rate 0.4 object radii per step with cosine decay to 1% (the smallest rate at which
->= 99.5% of random starts end force-closure on the glass with 4 fingers, in the sweep of
-``experiments/bench_optimize.py``), 100 steps.
+smallest batch ``gj.optimize`` compiles: fewer cost the same), ``--steps`` 100, and Adam with a
+peak learning rate ``--learning-rate`` of 0.4 object radii per step and cosine decay to 1% (the
+smallest rate at which >= 99.5% of random starts end force-closure on the glass with 4 fingers,
+in the sweep of ``experiments/bench_optimize.py``; ``gj.optimize``'s own default is 0.02).
 
 Compilation: before any timing, every method runs once on the shapes it will be timed on (one
 round: a call with the same starts and steps, one sampling round); that warm-up (compile + one
