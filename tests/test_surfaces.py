@@ -196,7 +196,7 @@ def test_random_walk_stays_on_surface_float64(name):
         assert (p.max(0) > 0.5 * np.abs(p).max(0)).all() and (p.min(0) < -0.5 * np.abs(p).max(0)).all()
 
 
-@pytest.mark.parametrize("name", ["ellipsoid", "cylinder", "star", "holes", "icosphere", "boxmesh"])
+@pytest.mark.parametrize("name", ["cylinder", "holes", "icosphere"])
 def test_random_walk_float32(name):
     obj, surface = build(name)
     with jax.enable_x64(False):
@@ -218,7 +218,7 @@ def test_step_within_a_face_is_addition():
         d = surface.dim
         with float64_scope():
             f = start(name).face
-            c = Contact(f, jnp.full((N, d), 1.0 / d))  # face centroids
+            c = Contact(f, jnp.full((N, d), 1.0 / d, dtype=jnp.float64))  # face centroids
             normal = jnp.asarray(surface.normals)[f]
             size = jnp.asarray(surface.areas)[f] ** (1 / (d - 1))
             v = 0.05 * size[:, None] * jax.random.normal(jax.random.key(5), (N, d))
@@ -281,7 +281,9 @@ def test_walking_once_around_a_ring_returns_to_the_start(name):
 @pytest.mark.parametrize("name", list(OBJECTS))
 def test_chart_at_zero_is_embed(name):
     _, surface = build(name)
-    for scope in (float64_scope(), jax.enable_x64(False)):
+    scopes = (float64_scope(), jax.enable_x64(False)) if name in ("cylinder", "holes", "icosphere") else \
+        (float64_scope(),)  # float32: the kinds the float32 walk compiles anyway
+    for scope in scopes:
         with scope:
             c = surface.sample(jax.random.key(1), N)
             p, n = EMBED(surface, c)
@@ -425,14 +427,13 @@ def test_analytic_sample_matches_the_objects_sampler(name):
 def test_locate_finds_the_closest_point(name):
     obj, surface = build(name)
     rng = np.random.default_rng(13)
-    points = (obj.center + obj.radius * rng.uniform(-1.3, 1.3, size=(300, obj.dim))).reshape(3, 100, obj.dim)
+    points = (obj.center + obj.radius * rng.uniform(-1.3, 1.3, size=(N, obj.dim))).reshape(2, N // 2, obj.dim)
     c = surface.locate(points)
-    assert c.face.shape == (3, 100) and c.coords.shape[:2] == (3, 100)
+    assert c.face.shape == (2, N // 2) and c.coords.shape[:2] == (2, N // 2)
     with float64_scope():
-        found, _ = jax.vmap(surface.embed)(Contact(jnp.asarray(c.face.ravel()),
-                                                   jnp.asarray(c.coords.reshape(300, -1))))
+        found, _ = EMBED(surface, Contact(jnp.asarray(c.face.ravel()), jnp.asarray(c.coords.reshape(N, -1))))
     found = np.asarray(found)
-    flat = points.reshape(300, obj.dim)
+    flat = points.reshape(N, obj.dim)
     assert distance_from_surface(obj, found).max() < 1e-12 * obj.radius
     got = np.linalg.norm(found - flat, axis=1)
     if obj.dim == 2 or name in MESHES:
@@ -440,8 +441,7 @@ def test_locate_finds_the_closest_point(name):
         assert np.allclose(got, best, atol=1e-12 * obj.radius)
     else:  # no closer point among many on the surface
         dense, _ = obj.sample_surface(20_000, rng)
-        best = np.min([np.linalg.norm(dense - x, axis=1).min() for x in flat], axis=0) if False else \
-            np.array([np.linalg.norm(dense - x, axis=1).min() for x in flat])
+        best = np.array([np.linalg.norm(dense - x, axis=1).min() for x in flat])
         assert (got <= best + 1e-12).all()
         assert np.median(best - got) < 0.02 * obj.radius
 
@@ -449,7 +449,7 @@ def test_locate_finds_the_closest_point(name):
 # ------------------------------------------------------------------------------ batching
 
 
-@pytest.mark.parametrize("name", list(OBJECTS))
+@pytest.mark.parametrize("name", ["sphere", "ellipsoid", "box", "cylinder", "holes", "icosphere"])
 def test_vmap_equals_a_python_loop(name):
     obj, surface = build(name)
     with float64_scope():
