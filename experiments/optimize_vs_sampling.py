@@ -32,7 +32,9 @@ Tuning rule (the same for every row; nothing is set per object): ``--starts`` 25
 smallest batch ``gj.optimize`` compiles: fewer cost the same), ``--steps`` 100, and Adam with a
 peak learning rate ``--learning-rate`` of 0.4 object radii per step and cosine decay to 1% (the
 smallest rate at which >= 99.5% of random starts end force-closure on the glass with 4 fingers,
-in the sweep of ``experiments/bench_optimize.py``; ``gj.optimize``'s own default is 0.02).
+in the sweep of ``experiments/bench_optimize.py``) from random starts; sample-then-refine uses
+``gj.optimize``'s default 0.02 (``--refine-learning-rate``): its starts are already good, and
+large steps would throw them across the object.
 
 Compilation: before any timing, every method runs once on the shapes it will be timed on (one
 round: a call with the same starts and steps, one sampling round); that warm-up (compile + one
@@ -91,6 +93,9 @@ BASELINES = ("dfc", "dfc_eig", "min_weight", "signed_q")
 #: every row: the smallest rate of the sweep 0.02 .. 0.8 at which >= 99.5% of random starts end
 #: force-closure on the glass with 4 fingers (``bench_optimize.py``, learning-rate table).
 LEARNING_RATE = 0.4
+#: Refining sampled grasps (already good): ``gj.optimize``'s default, 0.02 radii per step, so that a
+#: start climbs to its own local optimum instead of being thrown across the object.
+REFINE_LEARNING_RATE = 0.02
 #: The Q statistics are over the best this many distinct force-closure grasps.
 TOP = 100
 #: Distinct grasps kept between rounds for the Q-vs-time curves.
@@ -191,11 +196,14 @@ class Row:
     def optimize(self, objective: str, *, key=None, init=None):
         import grasp_jax as gj
 
-        extra = dict(init=init) if init is not None else dict(key=key, starts=self.args.starts)
+        if init is not None:  # refining good starts: small steps (the rule of the module docstring)
+            extra = dict(init=init, learning_rate=self.args.refine_learning_rate)
+        else:
+            extra = dict(key=key, starts=self.args.starts, learning_rate=self.args.learning_rate)
         return gj.optimize(self.obj, fingers=self.fingers, mu=self.mu, steps=self.args.steps,
                            num_edges=self.args.edges, objective=objective,
                            monitor=objective == "closure",  # free for closure; no extra LP for the others
-                           learning_rate=self.args.learning_rate, **extra)
+                           **extra)
 
     # -- methods -----------------------------------------------------------------------------
     def warm_up(self, methods) -> dict:
@@ -301,6 +309,8 @@ def main():
     ap.add_argument("--steps", type=int, default=100, help="optimizer steps per start (default: %(default)s)")
     ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE,
                     help="peak Adam learning rate, object radii per step (default: %(default)s)")
+    ap.add_argument("--refine-learning-rate", type=float, default=REFINE_LEARNING_RATE,
+                    help="peak learning rate when refining sampled grasps (default: %(default)s)")
     ap.add_argument("--devices", type=int, default=None, help="XLA CPU devices (default: one per core)")
     ap.add_argument("--starts", type=int, default=256, help="starts per optimizer round (default: %(default)s)")
     ap.add_argument("--sample-round", type=int, default=16384, help="grasps per sampling round (default: %(default)s)")
@@ -440,7 +450,8 @@ def main():
         f"Friction {args.friction_deg:g} deg (mu = {mu:.3f}), m = {args.edges} cone edges, {devices} XLA CPU "
         f"devices, budget {args.seconds:g} s of work per method and row (sampling: the larger of that and the "
         f"optimizers' time in its row). Optimizers: rounds of {args.starts} starts x {args.steps} steps, Adam "
-        f"(peak learning rate {args.learning_rate:g} object radii per step, cosine decay to 1%); "
+        f"(peak learning rate {args.learning_rate:g} object radii per step from random starts, "
+        f"{args.refine_learning_rate:g} when refining, cosine decay to 1%); "
         f"refine samples for {args.refine_fraction:.0%} of the budget, then optimizes the best distinct "
         f"sampled grasps. Sampling rounds of {args.sample_round:,} grasps uniform by area. 'median Q best "
         f"{TOP}': over the best {TOP} distinct force-closure grasps (grid of {args.distinct_tol:g} object "
