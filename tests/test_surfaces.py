@@ -246,13 +246,13 @@ def test_crossing_a_flat_region_is_a_straight_line():
         assert np.allclose(square.embed(out)[0], [0.0, 0.8, 0.0], atol=1e-15)
     # across the many coplanar triangles of a box face and over its edges: along one face it is
     # straight, and over an edge the path unfolds (the length on the surface is kept)
-    obj, surface = build("boxmesh")
+    _, surface = build("boxmesh")
     with float64_scope():
-        start = surface.locate(np.array([-0.9, -0.45, 0.25]))
-        start = Contact(jnp.asarray(start.face), jnp.asarray(start.coords))
-        p = surface.embed(surface.retract(start, jnp.array([1.7, 0.8, 0.0])))[0]
+        begin = surface.locate(np.array([-0.9, -0.45, 0.25]))
+        begin = Contact(jnp.asarray(begin.face), jnp.asarray(begin.coords))
+        p = surface.embed(surface.retract(begin, jnp.array([1.7, 0.8, 0.0])))[0]
         assert np.allclose(p, [0.8, 0.35, 0.25], atol=1e-14)
-        p = surface.embed(surface.retract(start, jnp.array([0.0, 0.0, 0.0]) + jnp.array([2.2, 0.0, 0.0])))[0]
+        p = surface.embed(surface.retract(begin, jnp.array([2.2, 0.0, 0.0])))[0]
         assert np.allclose(p, [1.0, -0.45, 0.25 - 0.3], atol=1e-14)  # 1.9 on top, 0.3 down the side
 
 

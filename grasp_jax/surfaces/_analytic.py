@@ -187,7 +187,7 @@ class EllipsoidSurface(_Analytic):
         # rejection from the sphere map: the ellipsoid's area per area of the unit sphere at u is
         # proportional to |u / axes|; a fixed pool, the first `count` accepted candidates kept
         # (a pool too small by chance, below 1e-12 here, fills up with rejected ones)
-        pool = int(math.ceil(count / self.acceptance * 1.5)) + 64
+        pool = math.ceil(count / self.acceptance * 1.5) + 64
         k_dir, k_acc = jax.random.split(key)
         dtype = jnp.result_type(float)
         u = _uniform_sphere(k_dir, pool, dtype)

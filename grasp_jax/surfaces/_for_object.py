@@ -9,7 +9,7 @@ CREASE_ANGLE = 45.0
 
 
 def for_object(obj, *, normals: str = "smooth", crease_angle: float = CREASE_ANGLE,
-               max_crossings: int = 32):
+               max_crossings: int = _simplicial.MAX_CROSSINGS):
     """The :class:`~grasp_jax.surfaces.Surface` of ``obj``.
 
     Args:
@@ -35,7 +35,7 @@ def for_object(obj, *, normals: str = "smooth", crease_angle: float = CREASE_ANG
     for cls, build in kind.items():
         if isinstance(obj, cls):
             return build(obj)
-    options = dict(normals=normals, crease_angle=crease_angle, max_crossings=max_crossings)
+    options = {"normals": normals, "crease_angle": crease_angle, "max_crossings": max_crossings}
     if isinstance(obj, objects.Polygon):
         return _simplicial.for_polygon(obj, **options)
     if isinstance(obj, objects.Mesh) or hasattr(obj, "mesh") and getattr(obj, "dim", 3) == 3:
