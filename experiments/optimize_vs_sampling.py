@@ -325,7 +325,12 @@ def main():
     ap.add_argument("--no-cache", action="store_true", help="do not use the XLA compilation cache")
     ap.add_argument("--quick", action="store_true",
                     help="smoke test: sphere, 3 fingers, 2 s per method, 20 steps, rounds of 4096 samples")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="DIR",
+                    help="only build the tables, JSON and figure in --out from the results.json of runs in "
+                         "these folders (for example runs of different objects side by side)")
     args = ap.parse_args()
+    if args.merge:
+        return merge(args.merge, args.out)
     if args.quick:
         args.objects, args.fingers, args.seconds, args.steps, args.sample_round = ["sphere"], [3], 2.0, 20, 4096
         args.refine_rounds = 2
@@ -340,12 +345,7 @@ def main():
 
     cache = compilation_cache(not args.no_cache)
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    import grasp_jax as gj
+    import grasp_jax as gj  # noqa: F401
     from grasp_jax import objects
 
     timer = Timer()
@@ -392,8 +392,28 @@ def main():
                       f"median Q top {s['top_count']} {s['median_q_top']:.3f}, {s['seconds']:.1f} s "
                       f"(warm-up {run.warmup:.1f} s)", file=sys.stderr, flush=True)
             print(f"  row took {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+            # After every row, so that an interrupted run keeps what it measured.
+            write_json(out, dict(meta=dict(args={k: (str(v) if isinstance(v, Path) else v)
+                                                 for k, v in vars(args).items()}, partial=True),
+                                 warmups=warmups, results=results))
     timer.lap("methods")
 
+    report(out, args, mu, devices, results, warmups, [o.name for o in objs], timer, cache)
+
+
+def report(out: Path, args, mu: float, devices: int, results: list, warmups: list, names: list, timer,
+           cache, notes=(), extra_meta=None) -> None:
+    """Tables (printed and ``results.md``), ``results.json`` and the figure of one run's (or
+    several merged runs') results."""
+    import jax
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import grasp_jax as gj
+
+    notes = list(notes)
     # ---- tables ------------------------------------------------------------------------------
     def median_cell(s):
         if not s["top_count"]:
@@ -413,7 +433,7 @@ def main():
              f"{s['seconds']:.1f}", f"{s['warmup_seconds']:.1f}"] for s in results]
 
     by = {(s["object"], s["fingers"], s["method"]): s for s in results}
-    keys = sorted({(s["object"], s["fingers"]) for s in results}, key=lambda k: ([o.name for o in objs].index(k[0]), k[1]))
+    keys = sorted({(s["object"], s["fingers"]) for s in results}, key=lambda k: (names.index(k[0]), k[1]))
 
     # Target 1: force-closure fraction from random starts, 4 fingers.
     t1 = [[o, f, by[o, f, "optimize"]["force_closure_fraction"], by[o, f, "optimize"]["not_force_closure"],
@@ -481,7 +501,6 @@ def main():
                  f"{_curve_fingers(args.fingers)} fingers).")
 
     # ---- figure --------------------------------------------------------------------------------
-    names = [o.name for o in objs]
     shown = [m for m in METHODS if any(s["method"] == m for s in results)]
     fig, axes = plt.subplots(2, len(names), figsize=(4.2 * len(names), 7.5), squeeze=False)
     width = 0.8 / max(len(shown), 1)
@@ -512,14 +531,51 @@ def main():
     plt.close(fig)
     timer.lap("tables and figure")
 
-    lines.append("\n" + timer.report())
+    lines += ["", *notes, timer.report()]
     meta = dict(args={k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
                 mu=mu, devices=devices, jax=jax.__version__, grasp_jax=gj.__version__,
                 learning_rate=args.learning_rate, compilation_cache=cache, top=TOP,
-                timer=timer.report())
+                timer=timer.report(), notes=notes, **(extra_meta or {}))
     write_json(out, dict(meta=meta, warmups=warmups, results=results))
     path = write(out, "\n".join(lines))
     print(path.read_text())
+
+
+def merge(folders: list, out: Path) -> None:
+    """One report from the ``results.json`` of several runs (their rows in the order given)."""
+    import argparse
+    import json
+
+    results, warmups, names, notes, runs = [], [], [], [], []
+    args = None
+    for folder in folders:
+        data = json.loads((Path(folder) / "results.json").read_text())
+        meta = data["meta"]
+        if meta.get("partial"):
+            notes.append(f"`{folder}` is a partial run (interrupted): its finished rows are included.")
+        run_args = argparse.Namespace(**meta["args"])
+        if args is None:
+            args = run_args
+        else:
+            for key in ("seconds", "steps", "starts", "learning_rate", "refine_learning_rate", "edges",
+                        "friction_deg", "sample_round", "refine_fraction", "distinct_tol"):
+                if getattr(run_args, key, None) != getattr(args, key, None):
+                    notes.append(f"`{folder}` differs in {key}: {getattr(run_args, key, None)} "
+                                 f"(the text above gives the first run's)")
+        results += data["results"]
+        warmups += data["warmups"]
+        for s in data["results"]:
+            if s["object"] not in names:
+                names.append(s["object"])
+        runs.append(dict(folder=str(folder), timer=meta.get("timer"), partial=bool(meta.get("partial"))))
+        if meta.get("timer"):
+            notes.append(f"`{folder}`: {meta['timer']}")
+    args.fingers = sorted({s["fingers"] for s in results})
+    args.out = out
+    notes.insert(0, f"Merged from {len(folders)} runs that ran side by side on the same machine: "
+                    + ", ".join(f"`{f}`" for f in folders) + ".")
+    report(out, args, mu_of(args.friction_deg), args.devices or use_cpu_cores(None), results, warmups,
+           names, Timer(), None, notes=notes, extra_meta=dict(merged=runs))
 
 
 def _curve_fingers(fingers) -> int:
