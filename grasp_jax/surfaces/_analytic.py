@@ -19,7 +19,7 @@ import numpy as np
 
 from .._precision import float64_scope
 from ._base import Contact
-from ._util import check_count, check_one, host_points, jit_method, norm, pytree, sign, tangent, unit
+from ._util import Fields, check_count, check_one, host_points, jit_method, norm, pytree, sign, tangent, unit
 
 _X = jnp.array([1.0, 0.0])
 
@@ -82,14 +82,9 @@ def project(shape_map, points, *params) -> tuple[np.ndarray, np.ndarray]:
 # surfaces
 
 
-class _Analytic:
+class _Analytic(Fields):
     """Shared methods; subclasses define ``_map(x)``, ``_sample_points(key, count)`` and
     ``_closest(points)`` (host)."""
-
-    dim: int
-    scale: float
-    center: jax.Array
-    normal_kind: str
 
     def _map(self, x):
         raise NotImplementedError
@@ -145,15 +140,11 @@ def _uniform_sphere(key, count, dtype):
     return unit(jax.random.normal(key, (count, 3), dtype))
 
 
-@pytree(data=("center", "radius"), meta=("dim", "scale", "normal_kind"))
+@pytree(data=("radius",))
 class SphereSurface(_Analytic):
     """Sphere of ``radius: ()`` about the origin."""
 
-    center: jax.Array
     radius: jax.Array
-    dim: int = 3
-    scale: float = 1.0
-    normal_kind: str = "exact"
 
     def _map(self, x):
         return sphere_map(x, self.radius)
@@ -167,17 +158,13 @@ class SphereSurface(_Analytic):
         return float(self.radius) * np.where(r > 0, points / np.where(r > 0, r, 1.0), up)
 
 
-@pytree(data=("center", "axes"), meta=("dim", "scale", "normal_kind", "acceptance"))
+@pytree(data=("axes",), meta=("acceptance",))
 class EllipsoidSurface(_Analytic):
     """Ellipsoid of semi-axes ``axes: (3,)`` about the origin. ``acceptance`` (static): the
     acceptance rate of the rejection sampler (area x min(axes) / (4 pi abc)), which sizes its
     fixed pool of candidates."""
 
-    center: jax.Array
     axes: jax.Array
-    dim: int = 3
-    scale: float = 1.0
-    normal_kind: str = "exact"
     acceptance: float = 0.5
 
     def _map(self, x):
@@ -200,16 +187,12 @@ class EllipsoidSurface(_Analytic):
         return _ellipsoid_closest(points, np.asarray(self.axes, float))
 
 
-@pytree(data=("center", "half"), meta=("dim", "scale", "normal_kind"))
+@pytree(data=("half",))
 class BoxSurface(_Analytic):
     """Box ``|x_i| <= half_i`` (``half: (3,)``). ``retract`` unfolds a step over the edges onto
     the neighbouring faces (up to 6 crossings), as on the box's net."""
 
-    center: jax.Array
     half: jax.Array
-    dim: int = 3
-    scale: float = 1.0
-    normal_kind: str = "exact"
 
     def _map(self, x):
         return box_map(x, self.half)
@@ -269,18 +252,14 @@ class BoxSurface(_Analytic):
         return best
 
 
-@pytree(data=("center", "radius", "half"), meta=("dim", "scale", "normal_kind"))
+@pytree(data=("radius", "half"))
 class CylinderSurface(_Analytic):
     """Capped cylinder along z: section ``radius: ()``, half height ``half: ()``. ``retract``
     walks the side exactly (unrolled), and carries a step over a rim once (side to cap or cap to
     side) before mapping back."""
 
-    center: jax.Array
     radius: jax.Array
     half: jax.Array
-    dim: int = 3
-    scale: float = 1.0
-    normal_kind: str = "exact"
 
     def _map(self, x):
         return cylinder_map(x, self.radius, self.half)
@@ -385,7 +364,7 @@ def for_ellipsoid(obj) -> EllipsoidSurface:
     axes = np.asarray(obj.axes, float)
     rate = float(obj.mesh.area) * axes.min() / (4 * np.pi * np.prod(axes))
     return EllipsoidSurface(center=np.zeros(3), axes=axes, scale=float(obj.radius),
-                            acceptance=min(1.0, rate))
+                            acceptance=float(min(1.0, rate)))
 
 
 def for_box(obj) -> BoxSurface:

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.spatial
 
 from ._base import Contact
-from ._util import check_count, check_one, host_points, jit_method, pytree, tangent, unit
+from ._util import Fields, check_count, check_one, host_points, jit_method, pytree, tangent, unit
 
 #: pairs of (corner, incidence) handled at once when building corner normals on the host
 _CHUNK = 1 << 22
@@ -40,12 +40,9 @@ _CHUNK = 1 << 22
 MAX_CROSSINGS = 16
 
 
-@pytree(
-    data=("vertices", "faces", "normals", "corners", "grads", "neighbors", "crossings", "areas",
-          "center"),
-    meta=("dim", "scale", "normal_kind", "max_crossings"),
-)
-class SimplicialSurface:
+@pytree(data=("vertices", "faces", "normals", "corners", "grads", "neighbors", "crossings", "areas"),
+        meta=("max_crossings",))
+class SimplicialSurface(Fields):
     """A triangle mesh (``dim = 3``) or polygon boundary (``dim = 2``) as a pytree. Build it with
     :func:`from_simplices` (or :func:`grasp_jax.surfaces.for_object`).
 
@@ -76,9 +73,6 @@ class SimplicialSurface:
     neighbors: jax.Array
     crossings: jax.Array
     areas: jax.Array
-    center: jax.Array
-    dim: int = 3
-    scale: float = 1.0
     normal_kind: str = "smooth"
     max_crossings: int = MAX_CROSSINGS
 

@@ -41,13 +41,26 @@ def sign(x: jax.Array) -> jax.Array:
     return jnp.where(x >= 0, 1.0, -1.0).astype(jnp.result_type(x, float))
 
 
-def pytree(data: tuple[str, ...], meta: tuple[str, ...]):
-    """Register a frozen dataclass as a pytree: ``data`` fields are leaves (arrays), ``meta``
-    fields are static (hashable)."""
+@dataclasses.dataclass(frozen=True, eq=False, kw_only=True)
+class Fields:
+    """The attributes every surface has (see :class:`~grasp_jax.surfaces.Surface`): ``center``
+    (data), ``dim``, ``scale`` and ``normal_kind`` (static)."""
+
+    center: jax.Array
+    dim: int = 3
+    scale: float = 1.0
+    normal_kind: str = "exact"
+
+
+def pytree(data: tuple[str, ...], meta: tuple[str, ...] = ()):
+    """Register a frozen, keyword-only dataclass built on :class:`Fields` as a pytree: ``center``
+    and the ``data`` fields are leaves (arrays); ``dim``, ``scale``, ``normal_kind`` and the
+    ``meta`` fields are static (hashable)."""
 
     def wrap(cls):
-        cls = dataclasses.dataclass(frozen=True, eq=False)(cls)
-        return jax.tree_util.register_dataclass(cls, data_fields=list(data), meta_fields=list(meta))
+        cls = dataclasses.dataclass(frozen=True, eq=False, kw_only=True)(cls)
+        return jax.tree_util.register_dataclass(
+            cls, data_fields=["center", *data], meta_fields=["dim", "scale", "normal_kind", *meta])
 
     return wrap
 
