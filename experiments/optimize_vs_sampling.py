@@ -330,7 +330,7 @@ def main():
                          "these folders (for example runs of different objects side by side)")
     args = ap.parse_args()
     if args.merge:
-        return merge(args.merge, args.out)
+        return merge(args.merge, args.out, defaults=vars(ap.parse_args([])))
     if args.quick:
         args.objects, args.fingers, args.seconds, args.steps, args.sample_round = ["sphere"], [3], 2.0, 20, 4096
         args.refine_rounds = 2
@@ -341,8 +341,6 @@ def main():
     baseline_fingers = set(args.fingers if args.baseline_fingers is None else args.baseline_fingers)
 
     devices = use_cpu_cores(args.devices)
-    import jax
-
     cache = compilation_cache(not args.no_cache)
 
     import grasp_jax as gj  # noqa: F401
@@ -414,6 +412,7 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
     import grasp_jax as gj
 
     notes = list(notes)
+    out.mkdir(parents=True, exist_ok=True)
     # ---- tables ------------------------------------------------------------------------------
     def median_cell(s):
         if not s["top_count"]:
@@ -541,7 +540,7 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
     print(path.read_text())
 
 
-def merge(folders: list, out: Path) -> None:
+def merge(folders: list, out: Path, defaults: dict) -> None:
     """One report from the ``results.json`` of several runs (their rows in the order given)."""
     import argparse
     import json
@@ -553,7 +552,7 @@ def merge(folders: list, out: Path) -> None:
         meta = data["meta"]
         if meta.get("partial"):
             notes.append(f"`{folder}` is a partial run (interrupted): its finished rows are included.")
-        run_args = argparse.Namespace(**meta["args"])
+        run_args = argparse.Namespace(**{**defaults, **meta["args"]})
         if args is None:
             args = run_args
         else:
