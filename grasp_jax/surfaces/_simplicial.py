@@ -112,9 +112,9 @@ class SimplicialSurface(Fields):
 
     @jit_method()
     def walk(self, contact: Contact, v: jax.Array) -> tuple[Contact, jax.Array, jax.Array]:
-        """``retract`` with diagnostics: ``(contact, crossings () int32, rest () float)``, the
-        number of loop passes (faces entered, plus one) and the length of the displacement left
-        when ``max_crossings`` ran out (0 otherwise, or at an open boundary)."""
+        """``retract`` with diagnostics: ``(contact, passes () int32, rest () float)``: the
+        number of loop passes (faces crossed into, plus one) and the length of the displacement
+        left when ``max_crossings`` ran out (0 otherwise, or at an open boundary)."""
         check_one("walk", contact, self.dim, v)
         f0, b0 = jnp.asarray(contact.face), jnp.asarray(contact.coords)
         dtype = b0.dtype
@@ -362,10 +362,19 @@ def _closest_on_triangles(corners: np.ndarray, vertices: np.ndarray,
     """Closest point on triangles ``corners: (F, 3, 3)`` to each of ``points: (n, 3)``: face index
     and barycentrics ``(n, 3)``. Candidates: triangles whose bounding ball is within the distance
     to the nearest vertex (an upper bound), found with KD-trees; then exact distances."""
-    near, _ = scipy.spatial.cKDTree(vertices).query(points)
     centroid = corners.mean(1)
-    reach = np.linalg.norm(corners - centroid[:, None], axis=2).max(1)
-    lists = scipy.spatial.cKDTree(centroid).query_ball_point(points, near + reach.max() * (1 + 1e-9))
+    reach = np.linalg.norm(corners - centroid[:, None], axis=2).max(1).max() * (1 + 1e-9)
+    trees = scipy.spatial.cKDTree(vertices), scipy.spatial.cKDTree(centroid)
+    found = [_closest_candidates(corners, trees, reach, points[lo:lo + 256])
+             for lo in range(0, len(points), 256)]  # bounded candidate lists for far points
+    return np.concatenate([f for f, _ in found]), np.concatenate([b for _, b in found])
+
+
+def _closest_candidates(corners, trees, reach, points):
+    """:func:`_closest_on_triangles` for a block of points, with ``trees`` the KD-trees of the
+    vertices and of the triangle centroids and ``reach`` the largest centroid-corner distance."""
+    near, _ = trees[0].query(points)
+    lists = trees[1].query_ball_point(points, near + reach)
     count = np.array([len(c) for c in lists])
     tri = np.concatenate([np.asarray(c, dtype=np.int64) for c in lists])
     who = np.repeat(np.arange(len(points)), count)
