@@ -42,8 +42,12 @@ from ._precision import float64_scope
 from ._result import GraspEvaluation
 from ._validate import check_num_edges, check_scalar
 
-#: Default peak learning rate of Adam, in units of the object's radius per step.
-DEFAULT_LEARNING_RATE = 0.02
+#: Default peak learning rates of Adam, in object radii per step: from random starts (the smallest
+#: of 0.02..0.8 with >= 99.5% of 256 random 4-finger starts on the glass force-closure after 100
+#: steps was 0.4; 0.2 gave 99.2% with the highest median Q: ``experiments/bench_optimize.py``), and
+#: for refining given starts (``init``), which are near a good grasp already.
+DEFAULT_LEARNING_RATE = 0.3
+REFINE_LEARNING_RATE = 0.02
 #: Segments of the step loop (one compiled call each; the progress bar advances per segment).
 SEGMENTS = 20
 #: A start has converged when its best objective rose by less than this over the last
@@ -88,7 +92,9 @@ class OptimizeResult:
             positive (force-closure), else 0; ``None`` when not monitored.
         reason: ``(S,) int8`` :class:`EndReason`.
         initial_points: ``(S, n, d)`` the starts, on the surface.
-        objective_name, normal_kind: static strings; steps, seconds: the budget and the wall time.
+        objective_name, normal_kind: static strings; steps, seconds: the budget and the wall time;
+        scale: the object's radius; learning_rate: the default optimizer's peak rate (``None``
+        with a user's optimizer).
     """
 
     points: jax.Array
@@ -104,6 +110,7 @@ class OptimizeResult:
     steps: int = dataclasses.field(metadata={"static": True}, default=0)
     seconds: float = dataclasses.field(metadata={"static": True}, default=0.0)
     scale: float = dataclasses.field(metadata={"static": True}, default=1.0)
+    learning_rate: float | None = dataclasses.field(metadata={"static": True}, default=None)
 
     @property
     def force_closure(self) -> np.ndarray:
@@ -247,7 +254,7 @@ def optimize(
     num_edges: int = DEFAULT_NUM_EDGES,
     objective: str = "closure",
     optimizer: optax.GradientTransformation | None = None,
-    learning_rate: float = DEFAULT_LEARNING_RATE,
+    learning_rate: float | None = None,
     init=None,
     normals: str = "smooth",
     dtype="float64",
@@ -272,7 +279,9 @@ def optimize(
         optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
             object's radius (default: :func:`default_optimizer`, Adam with cosine decay). Pass the
             same object again to reuse the compiled program.
-        learning_rate: peak learning rate of the default optimizer.
+        learning_rate: peak learning rate of the default optimizer, in object radii per step
+            (default :data:`DEFAULT_LEARNING_RATE` = 0.3 from random starts,
+            :data:`REFINE_LEARNING_RATE` = 0.02 with ``init``).
         init: your own starts instead of random ones: ``(S, fingers, d)`` points (or a
             ``(points, normals)`` pair, for example the best grasps of ``grasp-jax sample``); each
             is moved to the closest surface point.
@@ -295,9 +304,12 @@ def optimize(
     steps = _check_int("steps", steps, 1)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
+    if learning_rate is None:
+        learning_rate = DEFAULT_LEARNING_RATE if init is None else REFINE_LEARNING_RATE
     learning_rate = check_scalar("learning_rate", learning_rate)
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES))}; got {objective!r}")
+    user_optimizer = optimizer is not None
     if optimizer is None:
         optimizer = default_optimizer(steps, learning_rate)
     elif not isinstance(optimizer, optax.GradientTransformation):
@@ -331,6 +343,7 @@ def optimize(
         quality_history=qualities, reason=reason, initial_points=initial_points,
         objective_name=objective, normal_kind=surface.normal_kind, steps=steps,
         seconds=time.perf_counter() - t0, scale=float(surface.scale),
+        learning_rate=None if user_optimizer else float(learning_rate),
     )
 
 

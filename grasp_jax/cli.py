@@ -205,12 +205,9 @@ def _add_plot(p: argparse.ArgumentParser, default_help: str | None = None,
 
 
 def _add_optimize(sub, builtins: str) -> None:
-    try:
-        from ._objectives import OBJECTIVES
-        from ._optimize import DEFAULT_LEARNING_RATE
-    except Exception:  # noqa: BLE001 - help must work even if the optimizer cannot be imported
-        OBJECTIVES = ("closure", "closure_any", "min_weight", "signed_q", "dfc", "dfc_eig")
-        DEFAULT_LEARNING_RATE = 0.02
+    from ._objectives import OBJECTIVES
+    from ._optimize import DEFAULT_LEARNING_RATE, REFINE_LEARNING_RATE
+
     p = sub.add_parser(
         "optimize", help="move contacts over the surface by gradient to make grasps better",
         description="Optimize --starts grasps of OBJECT by gradient (grasp_jax.optimize): every start moves\n"
@@ -233,8 +230,9 @@ def _add_optimize(sub, builtins: str) -> None:
                    help="what is maximized: 'closure' = min(signed Q, 4 x torque margin), positive exactly "
                         "at force-closure; 'closure_any' the same for every choice of c_1; 'min_weight' the "
                         "classical margin; 'signed_q'; 'dfc', 'dfc_eig' the DFC energies (baselines)")
-    g.add_argument("--lr", type=_positive_float, default=DEFAULT_LEARNING_RATE,
-                   help="peak learning rate of Adam (cosine decay), in object radii per step")
+    g.add_argument("--lr", type=_positive_float, default=None,
+                   help=f"peak learning rate of Adam (cosine decay), in object radii per step (default "
+                        f"{DEFAULT_LEARNING_RATE} from random starts, {REFINE_LEARNING_RATE} with --from)")
     g.add_argument("--normals", choices=("smooth", "flat"), default="smooth",
                    help="normals of meshes and polygons while optimizing: interpolated ('smooth', sharp "
                         "edges kept) or face normals ('flat'); analytic shapes use exact normals")
@@ -643,7 +641,7 @@ def _cmd_optimize(args) -> int:
         torque_test="exact",
         objective=args.objective,
         steps=int(args.steps),
-        learning_rate=float(args.lr),
+        learning_rate=float(result.learning_rate),
         normals=result.normal_kind,
         init="random" if src is None else str(args.from_file.resolve()),
         seconds=round(float(result.seconds), 3),

@@ -91,7 +91,7 @@ def test_output_file_has_the_sample_fields_and_the_history(runs):
     np.testing.assert_array_equal(np.asarray(res.quality), arrays["quality"])
     assert np.all(arrays["objective"] >= arrays["history"].max(axis=1) - 1e-12)
     for key, value in dict(command="optimize", object="quad", dim=2, fingers=3, mu=0.364, edges=4, seed=0,
-                           num=16, steps=10, objective="closure", learning_rate=0.02, init="random",
+                           num=16, steps=10, objective="closure", learning_rate=0.3, init="random",
                            torque_test="exact").items():
         assert meta[key] == value, key
     assert meta["normals"] in ("smooth", "flat", "exact")
