@@ -102,6 +102,13 @@ def initialize_distributed(force: bool = False) -> tuple[int, int]:
     return jax.process_index(), jax.process_count()
 
 
+def process_slot() -> tuple[int, int]:
+    """``(process_index, process_count)`` of this process in the JAX job (``(0, 1)`` alone)."""
+    import jax
+
+    return jax.process_index(), jax.process_count()
+
+
 def slice_bounds(num: int, index: int, count: int) -> tuple[int, int]:
     """The contiguous slice ``[start, stop)`` of ``num`` grasps scored by process ``index``."""
     return num * index // count, num * (index + 1) // count
@@ -121,5 +128,6 @@ __all__ = [
     "distributed_requested",
     "initialize_distributed",
     "part_path",
+    "process_slot",
     "slice_bounds",
 ]

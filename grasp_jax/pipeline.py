@@ -38,6 +38,7 @@ from typing import Iterable, Iterator, Mapping
 
 import numpy as np
 
+from . import devices as _devices
 from .devices import part_path, slice_bounds
 from .summary import DEFAULT_TOP, PERCENTILES, PipelineSummary, _QualityHistogram, _TopK
 
@@ -378,9 +379,7 @@ def run(
     num, fingers, chunk = int(num), int(fingers), int(chunk)
     index, count = 0, 1
     if distributed:
-        import jax
-
-        index, count = jax.process_index(), jax.process_count()
+        index, count = _devices.process_slot()
     start, stop = slice_bounds(num, index, count)
     if out is not None:
         out = part_path(storage.check_output_path(out), index, count)
