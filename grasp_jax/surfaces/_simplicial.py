@@ -35,8 +35,10 @@ _CHUNK = 1 << 22
 
 #: default cap on the faces one ``retract`` passes through. Under ``vmap`` a batch runs as many
 #: passes as its slowest contact; a step that would cross more faces stops short (still on the
-#: surface). Steps of 0.01 radius on the glass cross 2 faces (median), 4 (99%); near its poles,
-#: where 93 thin triangles meet, up to ~45: 16 truncates about 1 in 10,000 of those steps.
+#: surface). On the glass (4096 random contacts), steps of 0.01 radius cross 2 faces (median), 4
+#: (99%), up to ~45 near its poles where 93 thin triangles meet: 16 truncates ~1e-4 of them; steps
+#: of 0.05 radius: 0.8% truncated, 0.2% of the length lost; steps of 0.3 radius: 59% truncated,
+#: 24% of the length lost (64 crossings: 1.7% and 0.4%, for ~4x the time).
 MAX_CROSSINGS = 16
 
 
