@@ -21,7 +21,7 @@ from .._precision import float64_scope
 from ._base import Contact
 from ._util import Fields, check_count, check_one, host_points, jit_method, norm, pytree, sign, tangent, unit
 
-_X = jnp.array([1.0, 0.0])
+_X = np.array([1.0, 0.0])  # NumPy: importing must not start a JAX backend
 
 
 # --------------------------------------------------------------------------------------------
