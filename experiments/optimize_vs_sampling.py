@@ -535,6 +535,7 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
                 mu=mu, devices=devices, jax=jax.__version__, grasp_jax=gj.__version__,
                 learning_rate=args.learning_rate, compilation_cache=cache, top=TOP,
                 timer=timer.report(), notes=notes, **(extra_meta or {}))
+    meta.setdefault("git", _git_state())
     write_json(out, dict(meta=meta, warmups=warmups, results=results))
     path = write(out, "\n".join(lines))
     print(path.read_text())
@@ -575,6 +576,20 @@ def merge(folders: list, out: Path, defaults: dict) -> None:
                     + ", ".join(f"`{f}`" for f in folders) + ".")
     report(out, args, mu_of(args.friction_deg), args.devices or use_cpu_cores(None), results, warmups,
            names, Timer(), None, notes=notes, extra_meta=dict(merged=runs))
+
+
+def _git_state() -> dict:
+    """The repository's commit and the files changed in the working tree (the library is shared)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "grasp_jax"], cwd=root, capture_output=True,
+                               text=True).stdout.split("\n")
+    except OSError:
+        return {}
+    return dict(head=head, changed=[line[3:] for line in dirty if line.strip()])
 
 
 def _curve_fingers(fingers) -> int:
