@@ -575,7 +575,7 @@ def merge(folders: list, out: Path, defaults: dict) -> None:
     notes.insert(0, f"Merged from {len(folders)} runs that ran side by side on the same machine: "
                     + ", ".join(f"`{f}`" for f in folders) + ".")
     report(out, args, mu_of(args.friction_deg), args.devices or use_cpu_cores(None), results, warmups,
-           names, Timer(), None, notes=notes, extra_meta=dict(merged=runs))
+           names, Timer(), None, notes=notes, extra_meta=dict(merged=runs, git=dict(at_merge=_git_state())))
 
 
 def _git_state() -> dict:
