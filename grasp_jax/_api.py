@@ -95,9 +95,7 @@ def evaluate(
     fn, retry = bind(iterations=iterations), None
     if iterations is None:
         # A fast pass with a short budget, then the full budget for the few it leaves unfinished.
-        fast = first_pass_iterations(
-            _lp_columns(points.shape[-2], points.shape[-1], num_edges), points.dtype
-        )
+        fast = first_pass_iterations(_lp_columns(points.shape[-2], points.shape[-1], num_edges))
         fn, retry = bind(iterations=fast), Retry(fn, _unfinished)
     with scope:
         mu = jnp.asarray(mu, points.dtype)

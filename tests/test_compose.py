@@ -12,10 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _grasps import MU, QUAD, grasps, sample_polygon, sample_sphere
 
 import grasp_jax as gj
-
-from _grasps import MU, QUAD, grasps, sample_polygon, sample_sphere
 
 FIELDS = ("force_closure", "quality", "equilibrium", "torque_span", "delta", "torque_margin",
           "certificate", "quality_status", "torque_status")
@@ -63,7 +62,7 @@ def traced_2d():
     def everything(p, n):
         ev = gj.evaluate(p, n, mu=MU)
         summaries.append(repr(ev))
-        q = lambda p, n, mu=MU: gj.quality(p, n, mu=mu, signed=True)  # noqa: E731
+        q = lambda p, n, mu=MU: gj.quality(p, n, mu=mu, signed=True)
         mw = gj.min_weight(p, n, mu=MU)
         finite = jnp.isfinite(mw)
         return {

@@ -12,12 +12,13 @@ import os
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _grasps import MU, grasps, sample_sphere
+from _grasps import MU, grasps, sample_box, sample_sphere
 
 import grasp_jax as gj
 from grasp_jax import _precision
@@ -155,3 +156,48 @@ def test_float64_scope_nests():
                 assert jnp.ones(2).dtype == jnp.float64
             assert jnp.ones(2).dtype == jnp.float64
         assert jnp.ones(2).dtype == jnp.float32
+
+
+# ---------------------------------------------------------------------------------------------
+# float32 accuracy (the full 100,000-grasp table: experiments/float32_accuracy.py).
+
+BAND = 1e-4
+
+
+@pytest.fixture(scope="module")
+def float32_vs_float64():
+    """2,000 random 4-finger grasps each of the box and the sphere (the float64 program is the one
+    the other tests use): float32 against float64, no float64 anywhere on the float32 path."""
+    out = {}
+    for name, sampler, seed in (("box", sample_box, 5), ("sphere", sample_sphere, 6)):
+        p, n = grasps(sampler, 2000, 4, np.random.default_rng(seed))
+        e64 = gj.evaluate(p, n, mu=MU)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # unconverged LPs, counted below
+            e32 = gj.evaluate(p.astype(np.float32), n.astype(np.float32), mu=np.float32(MU))
+        assert e32.quality.dtype == jnp.float32 and e32.delta.dtype == jnp.float32
+        delta, tm = np.asarray(e64.delta), np.asarray(e64.torque_margin)
+        clear = ((delta > -BAND) & (tm > -BAND)) == ((delta > BAND) & (tm > BAND))
+        out[name] = {
+            "disagree": int(np.sum(clear & (np.asarray(e32.force_closure) != np.asarray(e64.force_closure)))),
+            "dq": np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64.quality)),
+            "unconverged": int(np.sum(~e32.converged)),
+        }
+    return out
+
+
+def test_float32_verdicts_and_quality(float32_vs_float64):
+    """What holds today (a regression bound): equal verdicts outside the band on the box, and Q
+    within 1e-4 on 99.5% of the grasps of both shapes."""
+    assert float32_vs_float64["box"]["disagree"] == 0
+    for name, r in float32_vs_float64.items():
+        assert np.mean(r["dq"] <= 1e-4) >= 0.995, name
+        assert r["unconverged"] <= 0.02 * len(r["dq"]), name
+
+
+@pytest.mark.xfail(strict=True, reason="issue 8 item 2 is not met yet: a few float32 quality LPs in "
+                   "a thousand end unconverged or off the optimum (experiments/float32_accuracy.py)")
+@pytest.mark.parametrize("name", ["box", "sphere"])
+def test_float32_targets(float32_vs_float64, name):
+    r = float32_vs_float64[name]
+    assert r["disagree"] == 0 and r["dq"].max() <= 1e-4 and r["unconverged"] == 0
