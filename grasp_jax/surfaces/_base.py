@@ -25,6 +25,9 @@ gradient is tangent to the face (not to the interpolated normal); ``retract`` ta
 caller's precision when traced); ``jax.device_put(surface)`` once, inside the precision scope the
 optimizer runs in, avoids copying them to the device on every call of a compiled step. The
 methods are compiled once per surface structure, so calling them outside ``jit`` is cheap too.
+A simplicial surface stops a ``retract`` after ``max_crossings`` faces (static, 16 by default;
+``for_object(..., max_crossings=)``); its ``walk(c, v)`` is ``retract`` plus the number of passes
+and the length of displacement left over, for diagnostics.
 """
 
 from __future__ import annotations
