@@ -194,8 +194,11 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
         P = jax.sharding.PartitionSpec
         mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
         body = _blocked(fn, len(grasp_specs), local, block)
+        def on_device(batched, shared, counts):
+            return body(batched, shared, counts[0])
+
         sharded = jax.shard_map(
-            lambda batched, shared, counts: body(batched, shared, counts[0]),
+            _named(on_device),
             mesh=mesh, in_specs=(P("batch"), P(), P("batch")), out_specs=P("batch"), check_vma=False,
         )
         size = local * len(devices)
@@ -209,11 +212,20 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
             return _Program(_compile(lowered, text, devices, _options(devices[0].platform, grasp_specs)), devices, size)
         _ONE_DEVICE.add(key)
         STATS["one_device"] += 1
-    program = jax.jit(_blocked(fn, len(grasp_specs), local, block))
+    program = jax.jit(_named(_blocked(fn, len(grasp_specs), local, block)))
     lowered = _lower(program, grasp_specs, local, shared, jax.ShapeDtypeStruct((), jnp.int32))
     default = (jax.local_devices()[0],) if not devices else devices[:1]
     options = _options(default[0].platform, grasp_specs)
     return _Program(_compile(lowered, lowered.as_text(), default, options), (), local)
+
+
+#: The name of every chunk program (in JAX's logs: ``jax.log_compiles``).
+PROGRAM_NAME = "grasp_jax_chunk"
+
+
+def _named(f: Callable) -> Callable:
+    f.__name__ = f.__qualname__ = PROGRAM_NAME
+    return f
 
 
 def _lower(program, grasp_specs, size, shared, counts):
@@ -387,7 +399,8 @@ def map_grasps(
 
             out = jax.tree_util.tree_map(put, out, redo)
     out = jax.tree_util.tree_map(lambda a: np.reshape(a, batch_shape + np.shape(a)[1:]), out)
-    return jax.tree_util.tree_map(jnp.asarray, out)
+    # jax.device_put, not jnp.asarray: the latter compiles a small copy program per shape.
+    return jax.tree_util.tree_map(jax.device_put, out)
 
 
 _OPTIONAL: dict = {}

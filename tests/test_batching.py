@@ -189,3 +189,36 @@ def test_retry_gathers_in_several_rounds():
     retry = _batch.Retry(slow, lambda out: out < 0)
     out = _batch.map_grasps(fast, (x,), 2.0, (5000,), chunk=4096, retry=retry)
     np.testing.assert_array_equal(np.asarray(out), 2.0 * x[:, 0])
+
+
+def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
+    """Batches of 1 to 100,000 grasps of one shape reuse the same compiled programs: one for
+    ``quality``, two for ``evaluate`` (its first pass and its retry pass), each traced once
+    (concrete calls run compiled executables: nothing is traced again). Counted in JAX's own
+    compile log (``jax.log_compiles``) and in ``_batch.STATS``; the persistent cache is off, so
+    that each program is compiled here. The shape (2D, 5 fingers) is used by no other test."""
+    import logging
+
+    monkeypatch.setenv("GRASP_JAX_CACHE", "off")
+    rng = np.random.default_rng(3)
+    sizes = (1, 255, 257, 1000, 20_000, 100_000)
+    p = rng.normal(size=(max(sizes), 5, 2))
+    n = p + 0.5 * rng.normal(size=p.shape)
+    before = dict(_batch.STATS)
+    results = {}
+    with caplog.at_level(logging.WARNING), jax.log_compiles():
+        for size in sizes:
+            results[size] = gj.evaluate(p[:size], n[:size], mu=MU)
+            np.asarray(gj.quality(p[:size], n[:size], mu=MU))
+    made = {k: v - before.get(k, 0) for k, v in _batch.STATS.items()}
+    assert made.get("traced") == 3 and made.get("compiled") == 3 and not made.get("loaded"), made
+    log = [r.getMessage() for r in caplog.records]
+    ours = f"jit({_batch.PROGRAM_NAME})"
+    assert sum(m.startswith("Finished XLA compilation") and ours in m for m in log) == 3, log
+    assert sum(m.startswith("Finished tracing") and _batch.PROGRAM_NAME in m for m in log) == 3, log
+    keys = [k for k in _batch._PROGRAMS if k[1] == (((5, 2), np.dtype(np.float64)),) * 2]
+    assert len(keys) == 3  # evaluate's two passes, quality's one
+    # Any batch size runs the same program: a grasp's results do not depend on it.
+    for size in sizes[:-1]:
+        _assert_same(results[size], results[sizes[-1]][:size])
+    assert np.any(np.asarray(results[sizes[-1]].iterations) > api.first_pass_iterations(api._lp_columns(5, 2, 8)))
