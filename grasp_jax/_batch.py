@@ -370,8 +370,8 @@ def map_grasps(
     if traced or total == 0:
         in_axes = (0,) * len(flat) + (None,)
         if total == 0:
-            out = jax.eval_shape(lambda *xs: jax.vmap(call, in_axes=in_axes)(*xs), *flat, shared)
-            return jax.tree_util.tree_map(lambda s: jnp.zeros(batch_shape + s.shape[1:], s.dtype), out)
+            out = _empty_shapes(call, tuple((a.shape[1:], a.dtype) for a in flat), shared, traced)
+            return jax.tree_util.tree_map(lambda s: jnp.zeros(batch_shape + s.shape, s.dtype), out)
         out = jax.vmap(call, in_axes=in_axes)(*flat, shared)
         return jax.tree_util.tree_map(lambda a: a.reshape(batch_shape + a.shape[1:]), out)
 
@@ -401,6 +401,21 @@ def map_grasps(
     out = jax.tree_util.tree_map(lambda a: np.reshape(a, batch_shape + np.shape(a)[1:]), out)
     # jax.device_put, not jnp.asarray: the latter compiles a small copy program per shape.
     return jax.tree_util.tree_map(jax.device_put, out)
+
+
+_SHAPES: dict = {}
+
+
+def _empty_shapes(fn: Callable, grasp_specs: tuple, shared, traced: bool):
+    """The per-grasp output shapes of ``fn`` (for an empty batch; traced once per signature)."""
+    key = None if traced else (fn, grasp_specs, _aval_key(shared), _x64())
+    if key in _SHAPES:
+        return _SHAPES[key]
+    specs = tuple(jax.ShapeDtypeStruct(shape, dtype) for shape, dtype in grasp_specs)
+    out = jax.eval_shape(fn, *specs, shared)
+    if key is not None:
+        _SHAPES[key] = out
+    return out
 
 
 _OPTIONAL: dict = {}

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -113,28 +111,40 @@ def test_float32_inputs(batch):
         gj.evaluate(p.astype(np.float32).astype(np.float64), n, mu=MU).force_closure))
 
 
-def test_chunks(monkeypatch):
-    """A batch that crosses the chunk size gives the same results as smaller calls, bit for bit:
-    every call runs the one compiled program of its chunk size, whatever the batch size (here a
-    chunk of 256 = BLOCK, and the default chunk)."""
-    assert _batch.CHUNK >= _batch.BLOCK == 256
-    p, n = _batch_of(600, seed=2)
-    cuts = ((0, 100), (100, 356), (356, 600))
+def _full_budget(p, n, chunk, progress=False):
+    """``evaluate``'s single-grasp function with the full budget, mapped in chunks of ``chunk``.
+    At the retry pass's size it runs ``evaluate``'s compiled retry program: nothing new to
+    compile."""
+    fn = api._bind(api._evaluate_single, num_edges=8, torque_test="exact", iterations=None)
+    return _batch.map_grasps(fn, (p, n, None), np.asarray(MU), (len(p),), chunk=chunk, progress=progress)
 
-    def pieces():
-        parts = [gj.evaluate(p[a:b], n[a:b], mu=MU) for a, b in cuts]
+
+def _retry_chunk():
+    return _batch._retry_sizes(tuple(jax.local_devices()), _batch.CHUNK, _batch.BLOCK)[0] * jax.local_device_count()
+
+
+def test_chunks():
+    """A batch that crosses the chunk size gives the same results as smaller calls, bit for bit:
+    every call runs the one compiled program of its chunk size, whatever the batch size (here
+    the chunk of evaluate's retry pass, and the default chunk)."""
+    assert _batch.CHUNK >= _batch.BLOCK == 256
+    chunk = _retry_chunk()
+    p, n = _batch_of(2 * chunk + 100, seed=2)
+    cuts = ((0, 100), (100, chunk + 100), (chunk + 100, 2 * chunk + 100))
+
+    def pieces(score):
+        parts = [score(p[a:b], n[a:b]) for a, b in cuts]
         return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *parts)
 
-    monkeypatch.setattr(api, "map_grasps", functools.partial(_batch.map_grasps, chunk=_batch.BLOCK))
-    chunked = gj.evaluate(p, n, mu=MU, progress=True)
-    assert chunked.force_closure.shape == (600,)
-    _assert_same(chunked, pieces())
+    chunked = _full_budget(p, n, chunk, progress=True)
+    assert chunked.force_closure.shape == (len(p),)
+    _assert_same(chunked, pieces(lambda a, b: _full_budget(a, b, chunk)))
     # The padding of the last chunk copies its first grasp: no spill into real results.
-    _assert_same(chunked[-1], gj.evaluate(p[-1], n[-1], mu=MU))
-    monkeypatch.undo()
+    _assert_same(jax.tree_util.tree_map(lambda a: a[-1], chunked), _full_budget(p[-1:], n[-1:], chunk)[0])
     whole = gj.evaluate(p, n, mu=MU)
-    _assert_same(whole, pieces())
-    # Two chunk sizes are two programs: the same verdicts, values equal within the LP tolerance.
+    _assert_same(whole, pieces(lambda a, b: gj.evaluate(a, b, mu=MU)))
+    # Two programs (a fast pass and a retry against one full pass): the same verdicts, values equal
+    # within the LP tolerance.
     for name in ("force_closure", "equilibrium", "torque_span", "quality_status", "torque_status"):
         np.testing.assert_array_equal(np.asarray(getattr(whole, name)), np.asarray(getattr(chunked, name)))
     np.testing.assert_allclose(np.asarray(whole.quality), np.asarray(chunked.quality), rtol=0, atol=1e-8)
@@ -165,12 +175,13 @@ def test_zero_size_batch():
 
 def test_fast_pass_and_retry_equal_one_full_pass():
     """The concrete path scores a chunk with a short iteration budget and re-solves, gathered,
-    the grasps it leaves unfinished (``_batch.Retry``): the results are exactly those of one pass
-    with the full budget, and some grasps did need the second pass."""
+    the grasps it leaves unfinished (``_batch.Retry``): the results are those of one pass with
+    the full budget (to the last bits: the passes are programs of their own), and some grasps
+    did need the second pass."""
     p, n = _batch_of(3000, seed=11)
     fast = gj.evaluate(p, n, mu=MU)
-    full = gj.evaluate(p, n, mu=MU, iterations=30)
-    _assert_same(fast, full, exact=False)  # the two passes compile apart: last-bit differences
+    full = _full_budget(p, n, _retry_chunk())
+    _assert_same(fast, full, exact=False)
     first = api.first_pass_iterations(api._lp_columns(N, D, 8))
     assert np.any(np.asarray(fast.iterations) > first)
     assert np.all(fast.converged)
