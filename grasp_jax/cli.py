@@ -342,24 +342,26 @@ def _check_plot_path(path: Path | None) -> Path | None:
 def _enable_compilation_cache() -> None:
     """Keep compiled XLA programs between runs (saves seconds per command).
 
-    In ``$GRASP_JAX_CACHE`` (``off`` disables it), default ``~/.cache/grasp_jax/xla``; JAX's own
+    The library keeps its chunk programs in its own cache (``grasp_jax._cache``: folder
+    ``$GRASP_JAX_CACHE``, ``off`` disables it, default ``~/.cache/grasp_jax/xla``) whatever is
+    done here. The command line owns its process, so it also points JAX's own persistent cache at
+    that folder, for the few programs it compiles outside the library; JAX's
     ``JAX_COMPILATION_CACHE_DIR`` wins when set.
     """
+    from . import _cache
+
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return
-    where = os.environ.get("GRASP_JAX_CACHE")
-    if where is not None and where.strip().lower() in ("", "0", "off", "no", "none", "false"):
-        return
+    where = _cache.directory()
     if where is None:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        where = os.path.join(base, "grasp_jax", "xla")
+        return
     try:
         os.makedirs(where, exist_ok=True)
     except OSError:
         return  # read-only home and the like: run without a cache
     import jax
 
-    jax.config.update("jax_compilation_cache_dir", where)
+    jax.config.update("jax_compilation_cache_dir", str(where))
 
 
 def _setup(args) -> None:
