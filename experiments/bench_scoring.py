@@ -1,12 +1,20 @@
 """Benchmark of the batched scorer against the one-grasp-at-a-time baselines, in one run.
 
 For n = 3, 4, 7 contacts and m = 8, 25 cone edges, times ``gj.evaluate`` (force-closure + Q +
-certificate; compile time reported separately) on 1k, 10k and 100k grasps of an ellipsoid, and
+certificate) on 1k, 10k and 100k grasps of an ellipsoid, and
 against it SciPy HiGHS solving only the Q LP one grasp at a time and qhull epsilon one grasp at a
 time (both on a sample, timed per grasp). Each batch is timed ``--repeat`` times and the best is reported
 (the machines are shared; every time goes into the JSON). Also checks accuracy on the HiGHS sample: the largest
 |Q - Q_HiGHS| and the force-closure verdicts against the min-weight definition (HiGHS) on grasps
 that are not marginal. Peak RSS after each batch shows that memory stays flat (scoring is chunked).
+
+Compilation, per grasp shape (fingers, edges): the programs compiled (``evaluate`` has two, its
+first pass and its retry pass, whatever the batch size), the XLA compile seconds of each and the
+tracing + lowering seconds (from JAX's monitoring events), and the cost of the first call on a
+batch size not seen before against a repeat of that call (the same compiled programs: no
+compilation). The persistent cache is off unless ``--cache`` (else a second run would load the
+programs instead of compiling them). Before timing, each batch size is run once on other grasps
+of the same shape (the warm-up); the timed calls then only run.
 
     python experiments/bench_scoring.py                 # full table (a few minutes on 2 cores)
     python experiments/bench_scoring.py --quick         # smaller batches, for a smoke test
@@ -37,6 +45,8 @@ def _parse():
     ap.add_argument("--baseline-sample", type=int, default=200, help="grasps timed one at a time per baseline")
     ap.add_argument("--mu", type=float, default=0.364)
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per batch; the best is reported")
+    ap.add_argument("--cache", action="store_true", help="use grasp_jax's persistent compilation cache")
+    ap.add_argument("--new-size", type=int, default=1234, help="batch size of the first-call-on-a-new-size check")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_scoring.json")
     return ap.parse_args()
 
@@ -47,10 +57,15 @@ if ARGS.devices > 1 and "xla_force_host_platform_device_count" not in os.environ
         os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={ARGS.devices}"
     ).strip()
 
+if not ARGS.cache:
+    os.environ["GRASP_JAX_CACHE"] = "off"
+
 import jax  # noqa: E402
+import jax.monitoring  # noqa: E402
 import numpy as np  # noqa: E402
 
 import grasp_jax as gj  # noqa: E402
+from grasp_jax import _batch  # noqa: E402
 from grasp_jax import reference  # noqa: E402
 from grasp_jax._baseline import epsilon_one  # noqa: E402
 
@@ -72,6 +87,14 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+#: JAX's compile-time events, in order: ``(event, seconds, function name)``.
+EVENTS: list = []
+COMPILE = "/jax/core/compile/backend_compile_duration"
+TRACE = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, seconds, **kw: EVENTS.append((event, seconds, str(kw.get("fun_name", "")))))
+
+
 def time_evaluate(points, normals, mu, m):
     t0 = time.perf_counter()
     res = gj.evaluate(points, normals, mu=mu, num_edges=m)
@@ -88,12 +111,27 @@ def main():
           f"{os.cpu_count()} cores, {platform.processor() or platform.machine()}", flush=True)
     for m in ARGS.edges:
         for n in ARGS.fingers:
-            # Compile every chunk shape the batches will use, and report it.
+            # Compile (first call, on one grasp), then warm up on every batch size that is timed
+            # (other grasps of the same shape); report what was compiled.
             warm_p, warm_n = ellipsoid_grasps(max(batches), n, seed=99)
-            t_compile = 0.0
+            mark, made = len(EVENTS), dict(_batch.STATS)
+            t_first, _ = time_evaluate(warm_p[:1], warm_n[:1], mu, m)
             for b in sorted(set(batches)):
-                t, _ = time_evaluate(warm_p[:b], warm_n[:b], mu, m)
-                t_compile += t
+                time_evaluate(warm_p[:b], warm_n[:b], mu, m)
+            ours = [(e, t) for e, t, name in EVENTS[mark:] if _batch.PROGRAM_NAME in name]
+            compiles = [round(t, 2) for e, t in ours if e == COMPILE]  # the chunk programs only
+            trace_s = sum(t for e, t in ours if e in TRACE)
+            programs = {k: v - made.get(k, 0) for k, v in _batch.STATS.items() if v != made.get(k, 0)}
+            # The first call on a batch size never seen before, against the same call again.
+            new_p, new_n = ellipsoid_grasps(ARGS.new_size, n, seed=5)
+            mark = len(EVENTS)
+            t_new, _ = time_evaluate(new_p, new_n, mu, m)
+            new_compiles = sum(e == COMPILE for e, _, _ in EVENTS[mark:])
+            t_again, _ = time_evaluate(new_p, new_n, mu, m)
+            t_compile = float(sum(compiles))
+            print(f"n={n} m={m:2d}: compiled {len(compiles)} programs, XLA {compiles} s, tracing + lowering "
+                  f"{trace_s:.1f} s, first call {t_first:.1f} s ({programs}); first call on {ARGS.new_size:,} "
+                  f"grasps {t_new:.3f} s, again {t_again:.3f} s, {new_compiles} compilations", flush=True)
 
             # Baselines, one grasp at a time, and the accuracy check on the same grasps.
             bp, bn = ellipsoid_grasps(sample, n, seed=7)
@@ -123,7 +161,10 @@ def main():
                 rate = b / t
                 row = dict(
                     fingers=n, edges=m, batch=b, seconds=t, all_seconds=times, grasps_per_s=rate,
-                    compile_s=t_compile, highs_q_per_s=highs_rate, qhull_eps_per_s=qhull_rate,
+                    compile_s=t_compile, compile_s_each=compiles, programs_compiled=len(compiles),
+                    trace_lower_s=trace_s, first_call_s=t_first, new_size=ARGS.new_size,
+                    new_size_first_s=t_new, new_size_again_s=t_again, new_size_compilations=new_compiles,
+                    highs_q_per_s=highs_rate, qhull_eps_per_s=qhull_rate,
                     ratio_vs_highs=rate / highs_rate, ratio_vs_qhull=rate / qhull_rate,
                     fc_rate=float(np.mean(np.asarray(res.force_closure))),
                     max_abs_q_err=q_err, verdicts_agree=agree, verdicts_checked=int(clear.sum()),
@@ -139,19 +180,20 @@ def main():
                 )
 
     print()
-    print("| n | m | batch | grasps/s | x HiGHS (Q LP) | x qhull (eps) | compile s | max abs dQ | verdicts | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| n | m | batch | grasps/s | x HiGHS (Q LP) | x qhull (eps) | compile s (programs) | new size: first / again s | max abs dQ | verdicts | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(
             f"| {r['fingers']} | {r['edges']} | {r['batch']:,} | {r['grasps_per_s']:,.0f} | {r['ratio_vs_highs']:,.0f} "
-            f"| {r['ratio_vs_qhull']:,.0f} | {r['compile_s']:.1f} | {r['max_abs_q_err']:.1e} "
+            f"| {r['ratio_vs_qhull']:,.0f} | {r['compile_s']:.1f} ({r['programs_compiled']}) "
+            f"| {r['new_size_first_s']:.3f} / {r['new_size_again_s']:.3f} | {r['max_abs_q_err']:.1e} "
             f"| {r['verdicts_agree']}/{r['verdicts_checked']} | {r['peak_rss_mb']:.0f} |"
         )
     ARGS.out.parent.mkdir(parents=True, exist_ok=True)
     meta = dict(
         grasp_jax=gj.__version__, jax=jax.__version__, devices=jax.device_count(),
         platform=jax.devices()[0].platform, device_kind=jax.devices()[0].device_kind,
-        cores=os.cpu_count(), mu=mu, python=sys.version.split()[0],
+        cores=os.cpu_count(), mu=mu, python=sys.version.split()[0], cache=ARGS.cache,
     )
     tmp = ARGS.out.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(dict(meta=meta, rows=rows), indent=2))
