@@ -51,6 +51,8 @@ class Tolerances:
         near: after the full budget, an unfinished LP whose best iterate is within ``near`` times
             ``lp`` counts as optimal there; so does an ill-posed one (tau, kappa -> 0) at the end.
         step: fraction of the step to the boundary the interior-point method takes.
+        restarts: with the full budget, problems left unfinished start again from
+            ``x = s = factor`` for each factor in turn (``_lp.solve``).
     """
 
     lp: float
@@ -61,15 +63,17 @@ class Tolerances:
     refine: int = 0
     near: float = 100.0
     step: float = 0.999
+    restarts: tuple = ()
 
 
 _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
 #: float32 (measured by ``experiments/float32_accuracy.py``): the interior-point method aims at
 #: 1e-6 (stopping at 1e-4 let |dQ| reach 0.1) and refines every direction once (without it the
 #: primal residual of 2% of quality LPs stops falling); after the full budget the best iterate
-#: within 100x counts as optimal, as in float64. A margin must exceed 2e-5, so that the verdicts
+#: within 100x counts as optimal, as in float64, and LPs still unfinished start again from two other
+#: points (a stalled trajectory is rounding, not the problem). A margin must exceed 2e-5, so that the verdicts
 #: of grasps whose margins are clear of 1e-4 can match float64's.
-_F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1)
+_F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1, restarts=(3.0, 0.3))
 
 
 def tolerances(dtype) -> Tolerances:
