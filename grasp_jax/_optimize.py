@@ -14,8 +14,9 @@ A step, for every start at once: the objective and its gradient with respect to 
 displacement ``v: (n, d)`` of the contacts at ``v = 0`` (through ``surface.chart``, so the
 gradient is Riemannian and sees how normals turn), one optax update of ``-gradient`` (optax
 minimizes), and ``surface.retract`` by the update times the object's radius: steps are taken in
-units of the object's size, whatever its units. The best iterate of each start (by objective) is
-kept, and at the end it is scored by :func:`grasp_jax.evaluate`, the exact test: the reported
+units of the object's size, whatever its units. The best iterate of each start is kept (the one
+with the highest Q among those the closure objective calls force-closure, else the one with the
+highest objective; by objective alone when Q is not monitored), and at the end it is scored by :func:`grasp_jax.evaluate`, the exact test: the reported
 ``quality`` is exactly what ``evaluate`` returns for the reported points and normals.
 """
 
@@ -82,11 +83,13 @@ class OptimizeResult:
     """What :func:`optimize` found, one entry per start (``S`` starts, ``n`` contacts, ``d``).
 
     Attributes:
-        points: ``(S, n, d)`` the best iterate of each start, exactly on the surface.
+        points: ``(S, n, d)`` the best iterate of each start, exactly on the surface: the highest Q
+            among the iterates that are force-closure (by the closure objective's sign), else the
+            highest objective (by objective alone when ``quality_history`` is ``None``).
         normals: ``(S, n, d)`` outward unit normals there, of kind ``normal_kind``; the grasps were
             scored with these.
         evaluation: :class:`GraspEvaluation` of ``points, normals`` by :func:`grasp_jax.evaluate`.
-        objective: ``(S,)`` the objective at ``points`` (the best over the steps).
+        objective: ``(S,)`` the objective at ``points``.
         history: ``(S, steps)`` the objective at each step's iterate.
         quality_history: ``(S, steps)`` Q of each step's iterate where its closure objective is
             positive (force-closure), else 0; ``None`` when not monitored.
@@ -195,7 +198,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
     *leaves, (surface, mu, offset) = args
-    contacts, opt_state, best, best_value = jax.tree_util.tree_unflatten(treedef, leaves)
+    contacts, opt_state, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
     n, d = contacts.face.shape[0], surface.dim
     dtype = contacts.coords.dtype
     zeros = jnp.zeros((n, d), dtype)
@@ -206,15 +209,12 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
         return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale)
 
     def step(carry, i):
-        contacts, opt_state, best, best_value = carry
+        contacts, opt_state, best, best_value, best_q = carry
         (val, mon), grad = jax.value_and_grad(value, has_aux=True)(zeros, contacts)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         updates, new_opt = optimizer.update(-grad, opt_state, zeros)
         moved = jax.vmap(surface.retract)(contacts, updates * surface.scale)
         active = offset + i < total
-        better = active & (val > best_value)
-        best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, contacts)
-        best_value = jnp.where(better, val, best_value)
         keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)
         if kind in _CLOSURE_KINDS:
             q = jnp.where(val > margin, mon["delta"], 0.0)
@@ -224,9 +224,14 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
             q = jnp.where(closure > margin, aux["delta"], 0.0)
         else:
             q = jnp.zeros((), dtype)
-        return (keep(moved, contacts), keep(new_opt, opt_state), best, best_value), (val, q)
+        # The best iterate: force-closure ones (q > 0) by Q, before the others by objective.
+        better = jnp.where(q > 0, q > best_q, (best_q <= 0) & (val > best_value)) & active
+        best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, contacts)
+        best_value = jnp.where(better, val, best_value)
+        best_q = jnp.where(better, q, best_q)
+        return (keep(moved, contacts), keep(new_opt, opt_state), best, best_value, best_q), (val, q)
 
-    carry = (contacts, opt_state, best, best_value)
+    carry = (contacts, opt_state, best, best_value, best_q)
     carry, (values, qualities) = jax.lax.scan(step, carry, jnp.arange(length))
     return tuple(jax.tree_util.tree_leaves(carry)), values, qualities
 
@@ -353,7 +358,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, prog
     dtype = contacts.coords.dtype
     d = surface.dim
     opt_state = jax.vmap(optimizer.init)(jnp.zeros((starts, n, d), dtype))
-    state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype))
+    state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, steps))
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
@@ -374,12 +379,12 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, prog
         qualities.append(np.asarray(qs))
         if bar is not None:
             bar.update(min(length, steps - offset))
-            best = np.asarray(leaves[-1])
+            best = np.asarray(leaves[-2])
             bar.set_postfix(positive=f"{np.mean(best > tolerances(dtype).margin):.0%}",
                             median=f"{np.median(best):.3f}")
     if bar is not None:
         bar.close()
-    contacts, _, best, best_value = jax.tree_util.tree_unflatten(treedef, leaves)
+    contacts, _, best, best_value, _ = jax.tree_util.tree_unflatten(treedef, leaves)
     points, normals = jax.vmap(jax.vmap(surface.embed))(best)
     history = np.concatenate(values, axis=1)[:, :steps]
     track = monitor or kind in _CLOSURE_KINDS
