@@ -194,6 +194,7 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
         P = jax.sharding.PartitionSpec
         mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
         body = _blocked(fn, len(grasp_specs), local, block)
+
         def on_device(batched, shared, counts):
             return body(batched, shared, counts[0])
 
@@ -214,7 +215,7 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
         STATS["one_device"] += 1
     program = jax.jit(_named(_blocked(fn, len(grasp_specs), local, block)))
     lowered = _lower(program, grasp_specs, local, shared, jax.ShapeDtypeStruct((), jnp.int32))
-    default = (jax.local_devices()[0],) if not devices else devices[:1]
+    default = (jax.local_devices()[0],)  # where jit runs a program without shardings
     options = _options(default[0].platform, grasp_specs)
     return _Program(_compile(lowered, lowered.as_text(), default, options), (), local)
 
