@@ -460,9 +460,9 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
             if (o, f, m) not in by:
                 continue
             s = by[o, f, m]
-            obj_p = s["objective_percentiles"].get(50, float("nan"))
             tb.append([o, f, m, f"{s['tried']:,}", s["force_closure_fraction"], f"{s['not_force_closure']:,}",
-                       s["q_percentiles_all_fc"].get(50, float("nan")), median_cell(s), s["best_q"], obj_p])
+                       _p50(s["q_percentiles_all_fc"]), median_cell(s), s["best_q"],
+                       _p50(s["objective_percentiles"])])
 
     lines = ["# Contact optimization against random sampling at equal wall-clock time\n"]
     lines.append(
@@ -552,7 +552,8 @@ def merge(folders: list, out: Path, defaults: dict) -> None:
         data = json.loads((Path(folder) / "results.json").read_text())
         meta = data["meta"]
         if meta.get("partial"):
-            notes.append(f"`{folder}` is a partial run (interrupted): its finished rows are included.")
+            notes.append(f"`{folder}` was stopped before the end of its object list: its finished rows "
+                         "are included.")
         run_args = argparse.Namespace(**{**defaults, **meta["args"]})
         if args is None:
             args = run_args
@@ -576,6 +577,11 @@ def merge(folders: list, out: Path, defaults: dict) -> None:
                     + ", ".join(f"`{f}`" for f in folders) + ".")
     report(out, args, mu_of(args.friction_deg), args.devices or use_cpu_cores(None), results, warmups,
            names, Timer(), None, notes=notes, extra_meta=dict(merged=runs, git=dict(at_merge=_git_state())))
+
+
+def _p50(percentiles: dict) -> float:
+    """The median from a percentile dict (keys are ints in memory, strings once read from JSON)."""
+    return percentiles.get(50, percentiles.get("50", float("nan")))
 
 
 def _git_state() -> dict:
