@@ -47,13 +47,13 @@ ACCELERATOR_CHUNK = 131072
 #: The retry pass scores the unfinished grasps ``chunk / RETRY_FRACTION`` at a time.
 RETRY_FRACTION = 32
 
-#: XLA options of the float64 chunk programs, by platform. On a CPU XLA's newer fusion emitters
-#: spend twice the compile time on the interior-point loop (measured 7-8 s against 4-5 s of CPU
-#: time for a 4-finger first pass), for no measurable speed; the classic emitters are used. With
-#: them, 128-bit vectors keep every grasp's result independent of its slot in the block (with
-#: wider ones the last slot of a block differed in the last bit). float32 programs keep XLA's
-#: defaults: with the classic emitters a float32 Q moved by 3e-4 (against 3e-5) from float64.
-COMPILER_OPTIONS = {"cpu": {"xla_cpu_use_fusion_emitters": False, "xla_cpu_prefer_vector_width": 128}}
+#: XLA options of the float64 chunk programs, by platform (float32 programs keep XLA's defaults).
+#: Empty: XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters: False``) halve the compile
+#: time of the interior-point loop (4-5 s against 7-8 s of CPU time for a 4-finger first pass)
+#: but change its rounding enough to end an ill-posed quality LP at a wrong optimum
+#: (tests/test_closure.py::test_ill_posed_quality_lp_converges: delta -0.42 for -1) and to move a
+#: float32 Q by 3e-4 from float64.
+COMPILER_OPTIONS: dict = {}
 
 #: Programs the concrete path has made in this process: ``"traced"`` (a program was traced and
 #: lowered), ``"compiled"`` (XLA compiled it), ``"loaded"`` (taken from the persistent cache) and
