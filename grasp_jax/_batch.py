@@ -8,8 +8,8 @@ Two paths:
   by one compiled program (a loop over vmapped blocks of :data:`BLOCK` grasps, which keeps the
   working set in cache, run over the blocks that hold real grasps only), sharded over the local
   devices. A batch of any size, 1 or 10^7 grasps, runs the same program: one compilation per
-  grasp shape, dtype and device set (two with a :class:`Retry` pass), at most a few seconds on a
-  CPU, kept between processes by the persistent cache of :mod:`grasp_jax._cache`. Memory stays
+  grasp shape, dtype and device set (two with a :class:`Retry` pass), kept between processes by
+  the persistent cache of :mod:`grasp_jax._cache`. Memory stays
   flat however large the batch.
 
 Devices. Several local devices (on a CPU: ``XLA_FLAGS=--xla_force_host_platform_device_count``)
