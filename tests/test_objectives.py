@@ -182,7 +182,7 @@ def test_objectives_are_finite_on_degenerate_grasps():
     two = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
     for kind in _objectives.OBJECTIVES:
         for p in (same, two):
-            P = np.stack([p, p + 1e-3 * np.eye(3)[: len(p)]])
+            P = np.stack([p, p + 1e-3 * np.eye(len(p), 3)])
             v, (gp, gn) = _value_and_grad(kind, 3)(P, P)
             assert np.isfinite(np.asarray(v)).all(), kind
             assert np.isfinite(np.asarray(gp)).all() and np.isfinite(np.asarray(gn)).all(), kind
