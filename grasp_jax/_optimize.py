@@ -192,8 +192,9 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 
 
 def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool):
-    """Advance one start ``length`` steps. ``args``: the leaves of the start's state (see
-    :func:`_initial_state`), then ``shared = (surface, mu, offset)``.
+    """Advance one start ``length`` steps. ``args``: the leaves of the start's state
+    ``(contacts, optimizer state, best contacts, best objective, best Q)`` (built in :func:`_run`),
+    then ``shared = (surface, mu, offset)``.
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
@@ -329,7 +330,8 @@ def optimize(
         starts = len(init_points)
     scope = float64_scope() if dtype == np.float64 else contextlib.nullcontext()
     with scope:
-        surface = surface.astype(dtype) if hasattr(surface, "astype") else surface
+        # On the device once, not copied with every segment's call (methods cast to the contacts' dtype).
+        surface = jax.device_put(surface)
         if init_points is None:
             contacts = surface.sample(key, starts * fingers)
             contacts = jax.tree_util.tree_map(lambda a: a.reshape((starts, fingers) + a.shape[1:]), contacts)
