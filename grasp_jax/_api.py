@@ -4,7 +4,6 @@ the batch by ``_batch.map_grasps``."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 import warnings
 from typing import Callable
 
@@ -14,7 +13,7 @@ import numpy as np
 
 from . import _closure
 from ._batch import Retry, map_grasps
-from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations
+from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterations
 from ._lp import Status
 from ._precision import scope_for
 from ._result import GraspEvaluation
@@ -54,7 +53,8 @@ def _warn_unconverged(status, what: str):
         )
 
 
-def _evaluate_single(points, normals, tangents, mu, *, num_edges, torque_test, iterations):
+def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test):
+    mu, iterations = shared  # the budget is traced: every budget runs one compiled program
     return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations)
 
 
@@ -91,18 +91,32 @@ def evaluate(
     if torque_test not in _TORQUE_TESTS:
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
-    bind = functools.partial(_bind, _evaluate_single, num_edges=num_edges, torque_test=torque_test)
-    fn, retry = bind(iterations=iterations), None
+    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test)
+    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges)
+    budget, retry = iterations, None
     if iterations is None:
         # A fast pass with a short budget, then the full budget for the few it leaves unfinished.
-        fast = first_pass_iterations(_lp_columns(points.shape[-2], points.shape[-1], num_edges))
-        fn, retry = bind(iterations=fast), Retry(fn, _unfinished)
+        budget = first_pass_iterations(columns)
+    else:
+        iterations = _check_iterations(iterations)
+        budget = iterations
     with scope:
         mu = jnp.asarray(mu, points.dtype)
-        result = map_grasps(fn, (points, normals, tangents), mu, batch, progress=progress, retry=retry)
+        if iterations is None:
+            retry = Retry((mu, np.int32(default_iterations(columns))), _unfinished)
+        shared = (mu, budget if is_traced(budget) else np.int32(budget))
+        result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
+
+
+def _check_iterations(iterations):
+    if is_traced(iterations):
+        return iterations
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
+        raise ValueError(f"iterations must be an integer >= 1; got {iterations!r}")
+    return int(iterations)
 
 
 def _lp_columns(n: int, d: int, num_edges: int) -> int:

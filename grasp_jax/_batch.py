@@ -8,7 +8,7 @@ Two paths:
   by one compiled program (a loop over vmapped blocks of :data:`BLOCK` grasps, which keeps the
   working set in cache, run over the blocks that hold real grasps only), sharded over the local
   devices. A batch of any size, 1 or 10^7 grasps, runs the same program: one compilation per
-  grasp shape, dtype and device set (two with a :class:`Retry` pass), kept between processes by
+  grasp shape, dtype and device set (a :class:`Retry` pass runs it again), kept between processes by
   the persistent cache of :mod:`grasp_jax._cache`. Memory stays
   flat however large the batch.
 
@@ -117,17 +117,20 @@ class Retry:
 
     A vmapped interior-point loop runs until the *slowest* problem of its block has converged,
     and a few problems in a hundred need twice the median iteration count: most of a block's
-    work would be spent on them. So the batch is first scored by a function with a small
-    iteration budget; the grasps for which ``unfinished(out)`` holds are gathered into chunks of
-    ``chunk / RETRY_FRACTION`` and scored again by ``fn`` with the full budget, and their results
-    replace the first ones. The two passes are two compiled programs, each of one fixed size.
+    work would be spent on them. So the batch is first scored with a small iteration budget;
+    the grasps for which ``unfinished(out)`` holds are scored again, gathered, with ``shared``
+    (the full budget), and their results replace the first ones. Both passes run the *same*
+    function with ``shared`` arguments of the same structure and types, hence the same compiled
+    program on a CPU (its loop skips the blocks of padding, so a chunk of gathered grasps costs
+    what they cost); an accelerator, whose chunk is one wide block, runs the retry through a
+    program of ``chunk / RETRY_FRACTION`` grasps.
 
     Attributes:
-        fn: the single-grasp function with the full budget.
+        shared: the ``shared`` argument of the second pass (for example a larger budget).
         unfinished: ``out -> (batch,) bool`` on the first pass's output, as NumPy arrays.
     """
 
-    fn: Callable
+    shared: object
     unfinished: Callable
 
 
@@ -351,9 +354,10 @@ def map_grasps(
         progress: show a progress bar over chunks (tqdm).
         devices: devices to shard each chunk over (default: all local devices of the default
             backend).
-        retry: on the concrete path, ``fn`` is a fast first pass and ``retry`` scores again the
-            grasps it leaves unfinished (see :class:`Retry`). The traced path calls ``retry.fn``
-            alone: under the caller's transformations there is no chunk to compact.
+        retry: on the concrete path, a second pass with ``retry.shared`` scores again the grasps
+            the first leaves unfinished (see :class:`Retry`). The traced path runs with
+            ``retry.shared`` alone: under the caller's transformations there is no chunk to
+            compact.
 
     Returns:
         ``fn``'s pytree with ``batch_shape`` prepended to every leaf.
@@ -361,7 +365,7 @@ def map_grasps(
     present = [a for a in batched if a is not None]
     traced = is_traced(*present, *jax.tree_util.tree_leaves(shared))
     if retry is not None and traced:
-        fn, retry = retry.fn, None
+        shared, retry = retry.shared, None
     missing = tuple(a is None for a in batched)
     total = int(np.prod(batch_shape, dtype=np.int64))
     call = _with_optional(fn, missing)
@@ -389,9 +393,14 @@ def map_grasps(
     if retry is not None:
         again = np.flatnonzero(np.asarray(retry.unfinished(out)))
         if again.size:
-            cap, cap_block = _retry_sizes(devices, chunk, block)
-            second = _program(_with_optional(retry.fn, missing), grasp_specs, shared, cap, cap_block, multi)
-            redo = _score(second, flat, shared, again, again.size)
+            retry_shared = jax.device_get(retry.shared)
+            if _aval_key(retry_shared) != _aval_key(shared):
+                raise TypeError("Retry.shared must have the structure and types of the first pass's shared")
+            second = first
+            if devices[0].platform != "cpu":
+                cap, cap_block = _retry_sizes(devices, chunk, block)
+                second = _program(call, grasp_specs, shared, cap, cap_block, multi)
+            redo = _score(second, flat, retry_shared, again, again.size)
 
             def put(old, new):
                 old = np.array(old)  # device_get may hand out read-only arrays

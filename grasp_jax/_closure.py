@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import tolerances
-from ._lp import LP, LPSolution, Status, optimal_value, solve
+from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
 from ._result import GraspEvaluation
 from ._wrench import cross, primitive_wrenches
 
@@ -297,18 +297,19 @@ def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, ta
     return min_weight_value(w.reshape(-1, w.shape[-1]), iterations)
 
 
-def min_weight_value(vectors: jax.Array, iterations=None) -> tuple[jax.Array, jax.Array]:
+def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False) -> tuple[jax.Array, jax.Array]:
     """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
 
     ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
     derivatives come from the envelope theorem on the LP's primal-dual pair (no iteration is
     differentiated), finite everywhere, zero where the value is a constant (0 or ``-inf``).
+    ``best_effort``: see :func:`grasp_jax._lp.solve` (an unfinished LP gives its best iterate's value).
     """
     lp = min_weight_lp(vectors)
-    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
     rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
     full, _ = rank(jax.lax.stop_gradient(vectors))
     K = vectors.shape[0]
     value = 1.0 / K - optimal_value(lp, sol)
-    margin = jnp.where(sol.status == Status.OPTIMAL, value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))
+    margin = jnp.where(has_value(sol), value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))
     return jnp.where(full, margin, 0.0), sol.status

@@ -35,6 +35,9 @@ class Status(enum.IntEnum):
     OPTIMAL = 0
     INFEASIBLE = 1
     NOT_CONVERGED = 2
+    #: Only with ``solve(..., best_effort=True)``: unfinished after the budget, and ``x, y`` are
+    #: its best iterate (an approximate optimum, good for a gradient step, not for a verdict).
+    APPROXIMATE = 3
 
     @property
     def message(self) -> str:
@@ -42,6 +45,7 @@ class Status(enum.IntEnum):
             Status.OPTIMAL: "optimal",
             Status.INFEASIBLE: "infeasible (certified by the homogeneous model)",
             Status.NOT_CONVERGED: "not converged in the iteration budget; values are not reliable",
+            Status.APPROXIMATE: "not converged in the iteration budget; the best iterate is reported",
         }[self]
 
 
@@ -306,19 +310,34 @@ def _step(lp: LP, st: _State) -> _State:
     return new._replace(done=done | ~ok, iterations=jnp.where(done, st.iterations, st.iterations + 1))
 
 
-def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, accept_near: bool) -> LPSolution:
+def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, accept_near,
+            best_effort: bool = False) -> LPSolution:
     A, b, c = lp
     rp, rd, aty = _residuals(lp, st)
     optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
     optimal = optimal & ~inconsistent
     infeasible = infeasible | inconsistent
     x_opt, y_opt = st.x / st.tau, st.y / st.tau
-    if accept_near:
+    if best_effort:
+        # Unfinished: the iterate of smallest residual, the last one or an earlier one.
+        approximate = ~optimal & ~infeasible
+        earlier = st.best_residual < residual
+        x_opt = jnp.where(approximate & earlier, st.best_x, x_opt)
+        y_opt = jnp.where(approximate & earlier, st.best_y, y_opt)
+        residual = jnp.where(approximate, jnp.minimum(residual, st.best_residual), residual)
+        status = jnp.where(optimal, Status.OPTIMAL, jnp.where(infeasible, Status.INFEASIBLE, Status.APPROXIMATE))
+        by = b @ st.y
+        y = jnp.where(infeasible, jnp.where(inconsistent, y_null, st.y / jnp.where(by > 0, by, 1.0)), y_opt)
+        x = jnp.where(infeasible, 0.0, x_opt)
+        value = jnp.where(infeasible, 0.0, c @ x)
+        residual = jnp.where(inconsistent, 0.0, residual)
+        return LPSolution(x, y, value, status.astype(jnp.int8), st.iterations, residual)
+    if accept_near is not False:
         # Near the optimum of an ill-conditioned problem the iterates can wander instead of
         # meeting the tolerance (seen: a residual of 2e-9 at iteration 14, 5e-2 at 40). After the
         # full budget, the best iterate counts as optimal when within 100x the tolerance.
         tol = tolerances(A.dtype)
-        near = ~optimal & ~infeasible & (st.best_residual <= tol.near * tol.lp)
+        near = accept_near & ~optimal & ~infeasible & (st.best_residual <= tol.near * tol.lp)
         x_opt = jnp.where(near, st.best_x, x_opt)
         y_opt = jnp.where(near, st.best_y, y_opt)
         residual = jnp.where(near, st.best_residual, residual)
@@ -335,7 +354,8 @@ def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, acce
     return LPSolution(x, y, value, status, st.iterations, residual)
 
 
-def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> tuple[LPSolution, ...]:
+def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool = False,
+          best_effort: bool = False) -> tuple[LPSolution, ...]:
     """Solve one or more independent LPs in a single fused iteration loop.
 
     Each iteration advances every LP by one step; the loop ends when all are done (under
@@ -347,10 +367,15 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
             batch with ``jax.vmap``.
         iterations: interior-point iterations; default from the largest problem's column count.
             With at least the default, a problem that ends unfinished but whose best iterate is
-            within 100x the tolerance is reported optimal at that iterate.
+            within 100x the tolerance is reported optimal at that iterate. May be a traced integer
+            scalar, so that one compiled program serves every budget (``_batch.Retry``).
         consistent: the caller knows that ``A x = b`` has a solution (for example a feasible
             point by construction); skips the up-front test for a rank-deficient, inconsistent
             system (:func:`_inconsistency`), which costs about one iteration.
+        best_effort: a problem unfinished after ``iterations`` reports its best iterate with
+            status ``APPROXIMATE`` instead of ``NOT_CONVERGED`` and zeros (no restarts, no
+            acceptance within 100x): for a gradient step that cannot wait for stragglers, as in
+            ``gj.optimize``. Never for a verdict.
 
     Returns:
         One :class:`LPSolution` per LP, in order.
@@ -364,6 +389,10 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
     full = default_iterations(max(lp.A.shape[1] for lp in lps))
     if iterations is None:
         iterations = full
+    elif isinstance(iterations, jax.Array):
+        iterations = iterations.astype(jnp.int32)
+    else:
+        iterations = int(iterations)
     if consistent:
         checks = tuple((jnp.zeros((), bool), jnp.zeros_like(lp.b)) for lp in lps)
     else:
@@ -381,13 +410,15 @@ def solve(*lps: LP, iterations: int | None = None, consistent: bool = False) -> 
 
     _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
     # A short budget (the first pass of ``_batch.Retry``) reports unfinished problems as such.
-    accept_near = iterations >= full
+    if best_effort:
+        return tuple(_finish(lp, st, *check, False, True) for lp, st, check in zip(lps, states, checks))
+    accept_near = iterations >= full  # a Python bool, or a traced one
     sols = tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
     # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
     # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). Only the
     # problems still unfinished run again; the others stay frozen.
-    for factor in tolerances(lps[0].A.dtype).restarts if accept_near else ():
-        again = tuple(sol.status == Status.NOT_CONVERGED for sol in sols)
+    for factor in tolerances(lps[0].A.dtype).restarts if accept_near is not False else ():
+        again = tuple((sol.status == Status.NOT_CONVERGED) & accept_near for sol in sols)
         states = tuple(_init(lp, factor)._replace(done=~a) for lp, a in zip(lps, again))
         _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
         sols = tuple(
@@ -407,9 +438,14 @@ def optimal_value(lp: LP, solution: LPSolution) -> jax.Array:
     With ``x*, y*`` held fixed, ``c.x* - y*.(A x* - b)`` equals the optimal value and its
     derivative in ``(A, b, c)`` is ``dc.x* - y*.(dA x* - db)``, the derivative of the optimal
     value wherever the optimum is unique. No iteration is differentiated. Zero where the LP is not
-    optimal.
+    optimal (or ``APPROXIMATE``: then the same expression at the best iterate).
     """
     x = jax.lax.stop_gradient(solution.x)
     y = jax.lax.stop_gradient(solution.y)
     value = lp.c @ x - y @ (lp.A @ x - lp.b)
-    return jnp.where(solution.status == Status.OPTIMAL, value, 0.0)
+    return jnp.where(has_value(solution), value, 0.0)
+
+
+def has_value(solution: LPSolution) -> jax.Array:
+    """Whether ``solution`` carries an optimum: ``OPTIMAL``, or ``APPROXIMATE`` (best effort)."""
+    return (solution.status == Status.OPTIMAL) | (solution.status == Status.APPROXIMATE)

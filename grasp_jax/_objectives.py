@@ -51,7 +51,7 @@ from ._closure import (
 )
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
-from ._lp import Status, optimal_value, solve
+from ._lp import Status, has_value, optimal_value, solve
 from ._validate import check_scalar
 from ._wrench import cross, primitive_wrenches
 
@@ -71,41 +71,43 @@ FLOOR = -10.0
 DFC_EPSILON = 0.01
 
 
-def signed_quality(points, edges, iterations=None) -> jax.Array:
+def signed_quality(points, edges, iterations=None, best_effort: bool = False) -> jax.Array:
     """``delta*`` of the always-feasible quality LP (``Q`` where positive), envelope derivatives.
 
     Args:
-        points: ``(n, d)``; edges: ``(n, m, d)`` cone edges (:func:`cone_edges`)."""
+        points: ``(n, d)``; edges: ``(n, m, d)`` cone edges (:func:`cone_edges`).
+        iterations, best_effort: as :func:`grasp_jax._lp.solve`."""
     lp = quality_lp(points, edges)
-    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True)
-    return jnp.where(sol.status == Status.OPTIMAL, -optimal_value(lp, sol) - SHIFT, 0.0)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, best_effort=best_effort)
+    return jnp.where(has_value(sol), -optimal_value(lp, sol) - SHIFT, 0.0)
 
 
-def torque_margin(points, edges, iterations=None) -> jax.Array:
+def torque_margin(points, edges, iterations=None, best_effort: bool = False) -> jax.Array:
     """``T`` of the module docstring: > 0 iff the torques of contacts 2..n about ``c_1``
     positively span R^3 (R in 2D). Arguments as :func:`signed_quality`."""
     n, m, d = edges.shape
     tau = _torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1)
     if d == 2:
         return _exact_torque_2d(tau)[1]
-    margin, status = min_weight_value(tau, iterations)
+    margin, status = min_weight_value(tau, iterations, best_effort)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
 
 
-def _closure(points, normals, mu, num_edges, iterations):
+def _closure(points, normals, mu, num_edges, iterations, best_effort):
     edges = cone_edges(safe_normalize(normals), mu, num_edges)
-    delta = signed_quality(points, edges, iterations)
-    torque = TORQUE_WEIGHT * torque_margin(points, edges, iterations)
+    delta = signed_quality(points, edges, iterations, best_effort)
+    torque = TORQUE_WEIGHT * torque_margin(points, edges, iterations, best_effort)
     return jnp.minimum(delta, torque), delta, torque
 
 
-def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None) -> jax.Array:
+def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None,
+                      best_effort: bool = False) -> jax.Array:
     """``K l*`` of the min-weight LP on all ``K`` primitive wrenches, torques about ``center`` over
     ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible."""
     edges = cone_edges(safe_normalize(normals), mu, num_edges)
     w = primitive_wrenches((points - center) / scale, edges)
     w = w.reshape(-1, w.shape[-1])
-    margin, status = min_weight_value(w, iterations)
+    margin, status = min_weight_value(w, iterations, best_effort)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, w.shape[0] * margin)
 
 
@@ -127,7 +129,8 @@ def dfc_energy(points, normals, center, scale, eig: bool) -> jax.Array:
     return energy + jnp.sum(jax.nn.relu(DFC_EPSILON - evals) ** 2)
 
 
-def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None):
+def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None,
+                  best_effort: bool = False):
     """``(value, monitors)`` of objective ``kind`` for one grasp (larger is better).
 
     Args:
@@ -137,27 +140,30 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
         center: ``(d,)`` the object's centre; scale: its radius (``"min_weight"`` and the DFC
             energies take torques about ``center`` in units of ``scale``).
         iterations: interior-point iterations (default from the LP size).
+        best_effort: LPs unfinished after ``iterations`` give their best iterate's value (see
+            :func:`grasp_jax._lp.solve`): what ``gj.optimize`` uses, with a short budget.
 
     Returns:
         ``value: ()`` and ``monitors``: ``{"delta": delta*, "torque": weighted T}`` for the closure
         objectives (about the reported ``c_1``), empty otherwise.
     """
     if kind == "closure":
-        value, delta, torque = _closure(points, normals, mu, num_edges, iterations)
+        value, delta, torque = _closure(points, normals, mu, num_edges, iterations, best_effort)
         return value, {"delta": delta, "torque": torque}
     if kind == "closure_any":
         points, normals = jnp.asarray(points), jnp.asarray(normals)
         n = points.shape[0]
         rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
         values, deltas, torques = jax.vmap(
-            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations)
+            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort)
         )(rolled)
         k = jnp.argmin(values)
         return values[k], {"delta": deltas[0], "torque": torques[0]}
     if kind == "min_weight":
-        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations), {}
+        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations, best_effort), {}
     if kind == "signed_q":
-        return signed_quality(points, cone_edges(safe_normalize(normals), mu, num_edges), iterations), {}
+        edges = cone_edges(safe_normalize(normals), mu, num_edges)
+        return signed_quality(points, edges, iterations, best_effort), {}
     if kind in ("dfc", "dfc_eig"):
         return -dfc_energy(points, normals, center, scale, eig=kind == "dfc_eig"), {}
     raise ValueError(f"objective must be one of {OBJECTIVES}; got {kind!r}")

@@ -37,7 +37,7 @@ import optax
 from . import surfaces as _surfaces
 from ._api import _bind, evaluate
 from ._batch import map_grasps
-from ._constants import DEFAULT_NUM_EDGES, tolerances
+from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
@@ -55,6 +55,12 @@ SEGMENTS = 20
 #: :data:`CONVERGED_WINDOW` of the steps.
 CONVERGED_TOL = 1e-3
 CONVERGED_WINDOW = 0.25
+#: Interior-point iterations of each LP of a step (``None``: the first-pass budget of
+#: ``_constants.first_pass_iterations``, 10 for 4 fingers and 8 edges). A vmapped LP loop runs
+#: until its slowest problem is done; a step cannot gather stragglers as ``evaluate`` does, so the
+#: LPs stop at this budget and an unfinished one gives its best iterate (``best_effort``): a
+#: slightly inexact gradient, never a verdict (the reported grasps are scored by ``evaluate``).
+STEP_ITERATIONS: int | None = None
 #: Distinct grasps: contacts closer than this fraction of the object's radius are the same.
 DISTINCT_TOL = 0.01
 
@@ -191,7 +197,8 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 # One start, one segment of steps.
 
 
-def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool):
+def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool,
+             iterations: int):
     """Advance one start ``length`` steps. ``args``: the leaves of the start's state
     ``(contacts, optimizer state, best contacts, best objective, best Q)`` (built in :func:`_run`),
     then ``shared = (surface, mu, offset)``.
@@ -207,7 +214,8 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
 
     def value(v, contacts):
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
-        return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale)
+        return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
+                             iterations, best_effort=True)
 
     def step(carry, i):
         contacts, opt_state, best, best_value, best_q = carry
@@ -221,7 +229,8 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
             q = jnp.where(val > margin, mon["delta"], 0.0)
         elif monitor:
             points, normals = jax.vmap(surface.embed)(contacts)
-            closure, aux = objective_one(points, normals, mu, num_edges, "closure", surface.center, surface.scale)
+            closure, aux = objective_one(points, normals, mu, num_edges, "closure", surface.center, surface.scale,
+                                         iterations, best_effort=True)
             q = jnp.where(closure > margin, aux["delta"], 0.0)
         else:
             q = jnp.zeros((), dtype)
@@ -363,8 +372,9 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, prog
     state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, steps))
+    budget = STEP_ITERATIONS or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
-               length=length, total=steps, monitor=monitor)
+               length=length, total=steps, monitor=monitor, iterations=budget)
     mu = jnp.asarray(mu, dtype)
     values, qualities = [], []
     segments = range(0, steps, length)

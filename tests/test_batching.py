@@ -112,11 +112,10 @@ def test_float32_inputs(batch):
 
 
 def _full_budget(p, n, chunk, progress=False):
-    """``evaluate``'s single-grasp function with the full budget, mapped in chunks of ``chunk``.
-    At the retry pass's size it runs ``evaluate``'s compiled retry program: nothing new to
-    compile."""
-    fn = api._bind(api._evaluate_single, num_edges=8, torque_test="exact", iterations=None)
-    return _batch.map_grasps(fn, (p, n, None), np.asarray(MU), (len(p),), chunk=chunk, progress=progress)
+    """``evaluate``'s single-grasp function with the full budget, mapped in chunks of ``chunk``."""
+    fn = api._bind(api._evaluate_single, num_edges=8, torque_test="exact")
+    shared = (np.asarray(MU), np.int32(api.default_iterations(api._lp_columns(N, D, 8))))
+    return _batch.map_grasps(fn, (p, n, None), shared, (len(p),), chunk=chunk, progress=progress)
 
 
 def _retry_chunk():
@@ -176,12 +175,12 @@ def test_zero_size_batch():
 def test_fast_pass_and_retry_equal_one_full_pass():
     """The concrete path scores a chunk with a short iteration budget and re-solves, gathered,
     the grasps it leaves unfinished (``_batch.Retry``): the results are those of one pass with
-    the full budget (to the last bits: the passes are programs of their own), and some grasps
-    did need the second pass."""
+    the full budget, and some grasps did need the second pass."""
     p, n = _batch_of(3000, seed=11)
     fast = gj.evaluate(p, n, mu=MU)
-    full = _full_budget(p, n, _retry_chunk())
+    full = _full_budget(p, n, None)
     _assert_same(fast, full, exact=False)
+    np.testing.assert_array_equal(np.asarray(gj.evaluate(p, n, mu=MU, iterations=30).quality), np.asarray(full.quality))
     first = api.first_pass_iterations(api._lp_columns(N, D, 8))
     assert np.any(np.asarray(fast.iterations) > first)
     assert np.all(fast.converged)
@@ -190,21 +189,22 @@ def test_fast_pass_and_retry_equal_one_full_pass():
 def test_retry_gathers_in_several_rounds():
     """More unfinished grasps than one gathered block holds: the second pass loops over rounds."""
 
-    def fast(x, shared):
-        return jnp.where(x[0] > 0.5, -1.0, x[0] * shared)  # "unfinished" where x > 0.5
-
-    def slow(x, shared):
-        return x[0] * shared
+    def fn(x, shared):
+        scale, slow = shared
+        return jnp.where((x[0] > 0.5) & ~slow, -1.0, x[0] * scale)  # "unfinished" where x > 0.5
 
     x = np.random.default_rng(0).uniform(size=(5000, 1))
-    retry = _batch.Retry(slow, lambda out: out < 0)
-    out = _batch.map_grasps(fast, (x,), 2.0, (5000,), chunk=4096, retry=retry)
+    retry = _batch.Retry((np.float64(2.0), np.bool_(True)), lambda out: out < 0)
+    out = _batch.map_grasps(fn, (x,), (np.float64(2.0), np.bool_(False)), (5000,), chunk=4096, retry=retry)
     np.testing.assert_array_equal(np.asarray(out), 2.0 * x[:, 0])
+    with pytest.raises(TypeError, match="structure and types"):
+        _batch.map_grasps(fn, (x,), (np.float64(2.0), np.bool_(False)), (5000,), chunk=4096,
+                          retry=_batch.Retry((np.float64(2.0), np.float64(1.0)), lambda out: out < 0))
 
 
 def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
     """Batches of 1 to 100,000 grasps of one shape reuse the same compiled programs: one for
-    ``quality``, two for ``evaluate`` (its first pass and its retry pass), each traced once
+    ``quality``, one for ``evaluate`` (its first pass and its retry pass share it), each traced once
     (concrete calls run compiled executables: nothing is traced again). Counted in JAX's own
     compile log (``jax.log_compiles``) and in ``_batch.STATS``; the persistent cache is off, so
     that each program is compiled here. The shape (2D, 5 fingers) is used by no other test."""
@@ -222,13 +222,13 @@ def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
             results[size] = gj.evaluate(p[:size], n[:size], mu=MU)
             np.asarray(gj.quality(p[:size], n[:size], mu=MU))
     made = {k: v - before.get(k, 0) for k, v in _batch.STATS.items()}
-    assert made.get("traced") == 3 and made.get("compiled") == 3 and not made.get("loaded"), made
+    assert made.get("traced") == 2 and made.get("compiled") == 2 and not made.get("loaded"), made
     log = [r.getMessage() for r in caplog.records]
     ours = f"jit({_batch.PROGRAM_NAME})"
-    assert sum(m.startswith("Finished XLA compilation") and ours in m for m in log) == 3, log
-    assert sum(m.startswith("Finished tracing") and _batch.PROGRAM_NAME in m for m in log) == 3, log
+    assert sum(m.startswith("Finished XLA compilation") and ours in m for m in log) == 2, log
+    assert sum(m.startswith("Finished tracing") and _batch.PROGRAM_NAME in m for m in log) == 2, log
     keys = [k for k in _batch._PROGRAMS if k[1] == (((5, 2), np.dtype(np.float64)),) * 2]
-    assert len(keys) == 3  # evaluate's two passes, quality's one
+    assert len(keys) == 2  # evaluate's (both passes), quality's
     # Any batch size runs the same program: a grasp's results do not depend on it.
     for size in sizes[:-1]:
         _assert_same(results[size], results[sizes[-1]][:size])

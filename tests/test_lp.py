@@ -78,10 +78,11 @@ def problems():
 
 
 def test_status_enum():
-    assert [int(s) for s in Status] == [0, 1, 2]
+    assert [int(s) for s in Status] == [0, 1, 2, 3]
     assert Status.OPTIMAL.message.startswith("optimal")
     assert "infeasible" in Status.INFEASIBLE.message
     assert "not converged" in Status.NOT_CONVERGED.message
+    assert "best iterate" in Status.APPROXIMATE.message
 
 
 def test_feasible_matches_highs(problems):
@@ -203,6 +204,33 @@ def test_too_few_iterations_is_not_converged():
     (sol,) = solve(LP(jnp.asarray(A), jnp.asarray(b), jnp.asarray(c)), iterations=1)
     assert int(sol.status) == Status.NOT_CONVERGED
     assert float(sol.value) == 0.0
+
+
+_best_effort = jax.jit(jax.vmap(lambda A, b, c, k: solve(LP(A, b, c), iterations=k, best_effort=True)[0]))
+
+
+def test_best_effort_reports_the_best_iterate(problems):
+    """``best_effort``: an LP unfinished after its budget reports its best iterate as
+    ``APPROXIMATE`` (approaching HiGHS's optimum as the budget grows), infeasible ones are still
+    certified, and with the full budget the results are those of a plain solve. The budget is a
+    traced input: one program for every budget."""
+    feasible, infeasible = problems
+    A, b, c = (jnp.asarray(np.stack(x)) for x in zip(*(feasible + infeasible)))
+    ref = np.array([_highs(*p).fun for p in feasible])
+    k = len(feasible)
+    errors = []
+    for budget in (3, 6, 30):
+        sol = jax.tree_util.tree_map(np.asarray, _best_effort(A, b, c, jnp.full(len(A), budget, jnp.int32)))
+        assert set(sol.status[:k]) <= {Status.OPTIMAL, Status.APPROXIMATE}
+        assert np.all(np.isfinite(sol.value)) and np.all(np.isfinite(sol.x))
+        errors.append(np.max(np.abs(sol.value[:k] - ref) / (1 + np.abs(ref))))
+        if budget == 3:
+            assert np.sum(sol.status[:k] == Status.APPROXIMATE) > k // 2
+    assert errors[0] > errors[1] > errors[2] and errors[2] < 1e-7, errors
+    assert np.all(sol.status[k:] == Status.INFEASIBLE)
+    plain = _solve(feasible + infeasible)
+    np.testing.assert_array_equal(sol.status, plain.status)
+    np.testing.assert_allclose(sol.value, plain.value, rtol=0, atol=1e-12)
 
 
 def test_envelope_gradient_vs_highs_finite_differences():
