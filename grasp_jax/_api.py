@@ -17,7 +17,7 @@ from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterat
 from ._lp import Status
 from ._precision import scope_for
 from ._result import GraspEvaluation
-from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
+from ._validate import check_grasps, check_int, check_num_edges, check_scalar, is_traced
 
 _TORQUE_TESTS = ("exact", "paper")
 
@@ -114,9 +114,7 @@ def evaluate(
 def _check_iterations(iterations):
     if is_traced(iterations):
         return iterations
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
-        raise ValueError(f"iterations must be an integer >= 1; got {iterations!r}")
-    return int(iterations)
+    return check_int("iterations", iterations)
 
 
 def _lp_columns(n: int, d: int, num_edges: int) -> int:

@@ -41,7 +41,7 @@ from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
-from ._validate import check_num_edges, check_scalar
+from ._validate import check_int, check_num_edges, check_scalar
 
 #: Default peak learning rates of Adam, in object radii per step: from random starts (the smallest
 #: of 0.02..0.8 with >= 99.5% of 256 random 4-finger starts on the glass force-closure after 100
@@ -315,8 +315,8 @@ def optimize(
     """
     t0 = time.perf_counter()
     surface = _surface(obj, normals)
-    fingers = _check_int("fingers", fingers, 2)
-    steps = _check_int("steps", steps, 1)
+    fingers = check_int("fingers", fingers, 2)
+    steps = check_int("steps", steps)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
     if learning_rate is None:
@@ -333,7 +333,7 @@ def optimize(
     dtype = _check_dtype(dtype)
     init_points = None if init is None else _check_init(init, fingers, surface.dim)
     if init_points is None:
-        starts = _check_int("starts", starts, 1)
+        starts = check_int("starts", starts)
         key = _check_key(key)
     else:
         starts = len(init_points)
@@ -428,12 +428,6 @@ def _surface(obj, normals: str):
         raise ValueError(f"obj must be an object of grasp_jax.objects (for example grasp_jax.objects.load('glass')) "
                          f"or a grasp_jax.surfaces.Surface; got {type(obj).__name__}")
     return _surfaces.for_object(obj, normals=normals)
-
-
-def _check_int(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}; got {value!r}")
-    return int(value)
 
 
 def _check_dtype(dtype):

@@ -47,10 +47,16 @@ def check_scalar(name: str, value, *, positive: bool = True):
     return v
 
 
+def check_int(name: str, value, minimum: int = 1, note: str = "") -> int:
+    """A Python or NumPy integer (not a bool) >= ``minimum``, as an ``int``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        expected = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
+        raise ValueError(f"{name} must be {expected}{note}; got {value!r}")
+    return int(value)
+
+
 def check_num_edges(num_edges) -> int:
-    if isinstance(num_edges, bool) or not isinstance(num_edges, numbers.Integral) or num_edges < 3:
-        raise ValueError(f"num_edges must be an integer >= 3; got {num_edges!r}")
-    return int(num_edges)
+    return check_int("num_edges", num_edges, 3)
 
 
 def check_grasps(points, normals, tangents=None):

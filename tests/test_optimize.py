@@ -127,8 +127,8 @@ def test_distinct_ignores_the_order_of_contacts_2_to_n():
     [
         ({"obj": None}, ValueError, "obj must be"),
         ({"fingers": 1}, ValueError, "fingers must be an integer >= 2"),
-        ({"steps": 0}, ValueError, "steps must be an integer >= 1"),
-        ({"starts": 0}, ValueError, "starts must be an integer >= 1"),
+        ({"steps": 0}, ValueError, "steps must be a positive integer"),
+        ({"starts": 0}, ValueError, "starts must be a positive integer"),
         ({"mu": -1.0}, ValueError, "mu must be"),
         ({"objective": "epsilon"}, ValueError, "objective must be one of"),
         ({"optimizer": lambda g: g}, TypeError, "optax.GradientTransformation"),

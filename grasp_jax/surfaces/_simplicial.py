@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
 
+from .._validate import check_int
 from ._base import Contact
 from ._util import Fields, check_count, check_one, host_points, jit_method, pytree, tangent, unit
 
@@ -217,8 +218,7 @@ def from_simplices(vertices, faces, normals, *, center, scale: float, normal_kin
     crease_angle = float(crease_angle)
     if not 0.0 <= crease_angle <= 180.0:
         raise ValueError(f"crease_angle must be in [0, 180] degrees; got {crease_angle!r}")
-    if isinstance(max_crossings, bool) or not isinstance(max_crossings, (int, np.integer)) or max_crossings < 1:
-        raise ValueError(f"max_crossings must be an integer >= 1; got {max_crossings!r}")
+    max_crossings = check_int("max_crossings", max_crossings)
     vertices = np.asarray(vertices, dtype=float)
     faces = np.asarray(faces, dtype=np.int64)
     normals = np.asarray(normals, dtype=float)

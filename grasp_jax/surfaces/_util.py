@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._validate import check_int
 from ._base import Contact
 
 
@@ -79,9 +80,7 @@ def check_one(name: str, contact: Contact, k: int, v: jax.Array | None = None) -
 
 def check_count(count) -> int:
     """A static integer number of samples >= 0."""
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
-        raise ValueError(f"sample: count must be an integer >= 0 (static); got {count!r}")
-    return int(count)
+    return check_int("sample: count", count, 0, " (static)")
 
 
 def host_points(points, dim: int) -> np.ndarray:
