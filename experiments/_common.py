@@ -88,23 +88,18 @@ def use_cpu_cores(count: int | None = None) -> int:
 
 
 def compilation_cache(enable: bool = True) -> str | None:
-    """Keep compiled XLA programs between runs in the command line's cache
-    (``$GRASP_JAX_CACHE``, default ``~/.cache/grasp_jax/xla``; ``JAX_COMPILATION_CACHE_DIR`` wins).
-    Returns the folder, or ``None`` when disabled."""
+    """The folder of grasp_jax's compilation cache (``$GRASP_JAX_CACHE``, default
+    ``~/.cache/grasp_jax/xla``), or ``None`` when disabled (then switched off for this process).
+    JAX's own persistent cache stays off, as in the command line (see ``grasp_jax._cache``)."""
     import os
 
-    import jax
-
     if not enable:
+        os.environ["GRASP_JAX_CACHE"] = "off"
         return None
-    where = os.environ.get("JAX_COMPILATION_CACHE_DIR") or os.environ.get("GRASP_JAX_CACHE")
-    if where is None:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        where = os.path.join(base, "grasp_jax", "xla")
-    os.makedirs(where, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", where)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-    return where
+    from grasp_jax import _cache
+
+    where = _cache.directory()
+    return None if where is None else str(where)
 
 
 def write_json(out: Path, data, name: str = "results.json") -> Path:

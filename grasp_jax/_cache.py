@@ -11,8 +11,14 @@ serialized with :mod:`jax.experimental.serialize_executable`, one file per progr
 hash of the lowered program text, the compiler options, the JAX and jaxlib versions, the platform
 and the devices. A program of the same key is loaded instead of compiled (well under a second).
 Files that cannot be read, written or loaded are ignored: the program is compiled as without a
-cache. The command line additionally points JAX's own cache at the same folder (its files have
-other names), for the few programs it compiles outside the library.
+cache.
+
+Neither the library nor its command line switches on JAX's own persistent cache. Where the caller
+has (``jax_compilation_cache_dir`` set), this cache is only read, never written: JAX's cache keeps
+the programs then, and an executable that JAX loaded from its cache (which it does when this cache
+misses: its key has the device ids, the process index and ``XLA_FLAGS``, JAX's not all of them)
+serializes incompletely: the file written from it fails at run time in every later process
+(``NOT_FOUND: Function ... not found``; seen with two processes on one host).
 
 Like JAX's cache, the folder is trusted: loading an executable can run code. Do not point
 ``GRASP_JAX_CACHE`` at a folder that others can write to.
@@ -95,10 +101,17 @@ def load(name: str, lowered, devices: tuple):
         return None
 
 
+def jax_cache_active() -> bool:
+    """Whether JAX's own persistent cache is switched on in this process (by the caller)."""
+    return bool(jax.config.values.get("jax_compilation_cache_dir")) and bool(
+        jax.config.values.get("jax_enable_compilation_cache", True))
+
+
 def store(name: str, compiled) -> bool:
-    """Write ``compiled`` to the cache (atomically); ``False`` when it could not be."""
+    """Write ``compiled`` to the cache (atomically); ``False`` when it could not be, or when JAX's
+    own persistent cache is on (see the module docstring)."""
     folder = directory()
-    if folder is None:
+    if folder is None or jax_cache_active():
         return False
     try:
         from jax.experimental import serialize_executable

@@ -339,37 +339,12 @@ def _check_plot_path(path: Path | None) -> Path | None:
     return None if path is None else storage.check_output_path(path, suffixes=PLOT_SUFFIXES, what="figure")
 
 
-def _enable_compilation_cache() -> None:
-    """Keep compiled XLA programs between runs (saves seconds per command).
-
-    The library keeps its chunk programs in its own cache (``grasp_jax._cache``: folder
-    ``$GRASP_JAX_CACHE``, ``off`` disables it, default ``~/.cache/grasp_jax/xla``) whatever is
-    done here. The command line owns its process, so it also points JAX's own persistent cache at
-    that folder, for the few programs it compiles outside the library; JAX's
-    ``JAX_COMPILATION_CACHE_DIR`` wins when set.
-    """
-    from . import _cache
-
-    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
-        return
-    where = _cache.directory()
-    if where is None:
-        return
-    try:
-        os.makedirs(where, exist_ok=True)
-    except OSError:
-        return  # read-only home and the like: run without a cache
-    import jax
-
-    jax.config.update("jax_compilation_cache_dir", str(where))
-
-
 def _setup(args) -> None:
-    """Devices, processes and the compilation cache, before JAX starts its backend."""
+    """Devices and processes, before JAX starts its backend. (Compiled programs are kept by the
+    library's own cache, ``grasp_jax._cache``; JAX's persistent cache stays off: see there.)"""
     from . import devices
 
     devices.configure_cpu_devices(args.devices)
-    _enable_compilation_cache()
     if args.distributed or devices.distributed_requested():
         devices.initialize_distributed(force=True)
         args.distributed = True

@@ -233,3 +233,28 @@ def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
     for size in sizes[:-1]:
         _assert_same(results[size], results[sizes[-1]][:size])
     assert np.any(np.asarray(results[sizes[-1]].iterations) > api.first_pass_iterations(api._lp_columns(5, 2, 8)))
+
+
+def test_cache_is_read_only_beside_jax_persistent_cache(tmp_path):
+    """A caller who switched on JAX's own persistent cache keeps it: grasp_jax's cache writes no
+    file then (an executable JAX loaded from its cache would serialize incompletely), and the
+    results are those of the default process. Run in a fresh process, where the switch is set
+    before anything compiles."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, grasp_jax as gj\n"
+        "from grasp_jax import _cache\n"
+        "assert _cache.jax_cache_active()\n"
+        "p = np.random.default_rng(0).normal(size=(50, 3, 2)); n = -p\n"
+        "print(float(np.asarray(gj.quality(p.astype(np.float32), n.astype(np.float32), mu=0.5)).sum()))\n"
+    )
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax"), GRASP_JAX_CACHE=str(tmp_path / "gj"),
+               JAX_ENABLE_COMPILATION_CACHE="true", JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+    env.pop("XLA_FLAGS", None)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert not list((tmp_path / "gj").glob("grasp_jax-*")), "grasp_jax's cache was written"
+    assert list((tmp_path / "jax").iterdir()), "JAX's cache was not used"
