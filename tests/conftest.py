@@ -5,12 +5,37 @@ process by ``test_dtypes.py``). The suite itself then turns on JAX's 64-bit mode
 so that its comparisons with the float64 references (HiGHS, qhull, finite differences) run in
 float64 under ``jit`` and ``grad`` too; ``test_dtypes.py`` checks float32 programs in
 subprocesses without it.
+
+Compiling XLA programs is most of the suite's time, so the suite keeps what it compiles in a
+cache of its own, ``<repo>/.test-cache/xla`` (git-ignored; ``GRASP_JAX_CACHE=DIR`` moves it,
+``GRASP_JAX_CACHE=off`` switches it off and compiles everything), set here before anything is
+compiled; the user's ``~/.cache`` is neither read nor written. The next run loads what this one
+compiled. Two caches share the folder:
+
+* the test processes (the pytest-xdist workers of ``-n auto`` in ``pyproject.toml``; ``-n 0`` runs
+  the suite in one process) switch on JAX's own persistent cache there, which keeps the programs
+  the tests jit themselves (most of the suite's compilations) as well as the library's. The library
+  then only reads its own cache (``grasp_jax._cache``, which writes nothing beside JAX's);
+* the processes the tests start (the command line, the device layouts, the float32 checks)
+  inherit ``GRASP_JAX_CACHE`` but not JAX's cache (``JAX_COMPILATION_CACHE_DIR`` is removed from
+  the environment): they run as a user's processes do, with the library's own cache, and share the
+  chunk programs that one of them compiled, which the test processes load too.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+
+#: The suite's compilation cache (see the docstring), before JAX is imported.
+TEST_CACHE = Path(__file__).resolve().parents[1] / ".test-cache" / "xla"
+os.environ.setdefault("GRASP_JAX_CACHE", str(TEST_CACHE))
+#: The folder in effect for the whole session, or ``None`` when switched off (the values of
+#: ``grasp_jax._cache.OFF``, which cannot be imported before JAX).
+SUITE_CACHE = os.environ["GRASP_JAX_CACHE"]
+if SUITE_CACHE.strip().lower() in ("", "0", "off", "no", "none", "false"):
+    SUITE_CACHE = None
+os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)  # see the docstring
 
 import hypothesis
 import jax
@@ -29,6 +54,12 @@ IMPORT_CHANGED_CONFIG = {
 assert not IMPORT_CHANGED_CONFIG, f"importing grasp_jax changed JAX's configuration: {IMPORT_CHANGED_CONFIG}"
 
 jax.config.update("jax_enable_x64", True)  # the suite's float64 references; see the docstring
+if SUITE_CACHE is not None:
+    jax.config.update("jax_compilation_cache_dir", SUITE_CACHE)  # this process only; see the docstring
+
+from grasp_jax import _cache  # noqa: E402
+
+assert (_cache.directory() is None) == (SUITE_CACHE is None)
 
 #: ``<repo root>/../shared/data``: the real meshes and polygons shared by the project.
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -66,6 +97,13 @@ def mesh_dir(shared_data) -> Path:
     if not path.is_dir():
         pytest.skip(f"shared meshes not found at {path}")
     return path
+
+
+@pytest.fixture(scope="session")
+def xla_cache(tmp_path_factory) -> str:
+    """``GRASP_JAX_CACHE`` for the processes a test starts: the suite's cache, or, where it is
+    switched off, one for this session's processes (so that only the first of them compiles)."""
+    return SUITE_CACHE or str(tmp_path_factory.getbasetemp() / "xla-cache")
 
 
 @pytest.fixture

@@ -1,7 +1,7 @@
 """The ``grasp-jax`` command line, run as a subprocess (``python -m grasp_jax``).
 
-Runs are small (2,000 grasps) and share one XLA compilation cache, so only the first run of a
-session compiles.
+Runs are small (2,000 grasps) and share one XLA compilation cache (the suite's, see
+``conftest.py``), so only the first run of a session compiles, and none once the suite has run.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ NUM = "2000"
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory):
+def env(xla_cache):
     pytest.importorskip("grasp_jax.objects")
     pytest.importorskip("grasp_jax.sampling")
     e = dict(os.environ)
     e.pop("XLA_FLAGS", None)
-    e["GRASP_JAX_CACHE"] = str(tmp_path_factory.getbasetemp() / "xla-cache")
+    e["GRASP_JAX_CACHE"] = xla_cache
     e["PYTHONWARNINGS"] = "ignore::DeprecationWarning"
     return e
 

@@ -1,6 +1,12 @@
 """The optimizer's objectives (``_objectives``) and the differentiable min-weight margin:
 signs against the exact verdicts and HiGHS, values against Q, gradients against finite
-differences, vmap against a loop, finiteness everywhere."""
+differences, vmap against a loop, finiteness everywhere.
+
+Compiling is most of this module's time, so the programs are few and shared: one batched objective
+per kind and dimension (:func:`_objective`), run on the whole 300-grasp sphere set
+(:func:`sphere_values`) by every 3D test that compares its values, and one batched value-and-gradient
+per kind (:func:`_value_and_grad`) of the 49-grasp batches of the finite differences
+(:data:`GRAD_ROWS`), which the degenerate grasps of 4 contacts are padded to."""
 
 from __future__ import annotations
 
@@ -33,7 +39,9 @@ def _square_grasps(rng, count, n):
     return points, normals
 
 
+@functools.cache
 def _objective(kind, d):
+    """The batched objective ``kind`` in ``d`` dimensions, jitted once per kind and dimension."""
     center = np.zeros(d)
     return jax.jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, center, 1.0)[0]))
 
@@ -46,10 +54,24 @@ def sphere_set():
     return p, nr, ev
 
 
+@pytest.fixture(scope="module")
+def sphere_values(sphere_set):
+    """``kind -> _objective(kind, 3)`` of the whole sphere set, as NumPy (computed once per kind)."""
+    p, nr, _ = sphere_set
+    cache = {}
+
+    def get(kind):
+        if kind not in cache:
+            cache[kind] = np.asarray(_objective(kind, 3)(p, nr))
+        return cache[kind]
+
+    return get
+
+
 @pytest.mark.parametrize("kind", ["closure", "closure_any", "min_weight"])
-def test_positive_exactly_when_force_closure_3d(sphere_set, kind):
+def test_positive_exactly_when_force_closure_3d(sphere_set, sphere_values, kind):
     p, nr, ev = sphere_set
-    value = np.asarray(_objective(kind, 3)(p, nr))
+    value = sphere_values(kind)
     fc = np.asarray(ev.force_closure)
     assert 0.2 < fc.mean() < 0.9
     assert np.isfinite(value).all()
@@ -70,18 +92,18 @@ def test_positive_exactly_when_force_closure_2d():
         np.testing.assert_array_equal((value > 1e-7)[clear], fc[clear], err_msg=kind)
 
 
-def test_min_weight_sign_agrees_with_highs(sphere_set):
+def test_min_weight_sign_agrees_with_highs(sphere_set, sphere_values):
     p, nr, _ = sphere_set
-    value = np.asarray(_objective("min_weight", 3)(p[:60], nr[:60]))
+    value = sphere_values("min_weight")[:60]
     for i in range(60):
         ref = reference.min_weight_highs(p[i], nr[i], MU, num_edges=M)
         if abs(ref) > 1e-6:
             assert (value[i] > 0) == (ref > 0), i
 
 
-def test_closure_is_q_where_the_torque_term_does_not_bind(sphere_set):
+def test_closure_is_q_where_the_torque_term_does_not_bind(sphere_set, sphere_values):
     p, nr, ev = sphere_set
-    value = np.asarray(_objective("closure", 3)(p, nr))
+    value = sphere_values("closure")
     fc, q = np.asarray(ev.force_closure), np.asarray(ev.quality)
     equal = np.abs(value - q) < 1e-7
     assert equal[fc].mean() > 0.95
@@ -89,17 +111,17 @@ def test_closure_is_q_where_the_torque_term_does_not_bind(sphere_set):
     assert np.all(value[fc] <= q[fc] + 1e-7)
 
 
-def test_closure_any_does_not_depend_on_the_order(sphere_set):
+def test_closure_any_does_not_depend_on_the_order(sphere_set, sphere_values):
     p, nr, _ = sphere_set
-    f = _objective("closure_any", 3)
     perm = np.array([2, 0, 3, 1])
-    np.testing.assert_allclose(f(p[:40], nr[:40]), f(p[:40, perm], nr[:40, perm]), atol=1e-7)
+    permuted = np.asarray(_objective("closure_any", 3)(p[:, perm], nr[:, perm]))  # the set's program
+    np.testing.assert_allclose(sphere_values("closure_any")[:40], permuted[:40], atol=1e-7)
 
 
-def test_vmap_equals_a_loop(sphere_set):
+def test_vmap_equals_a_loop(sphere_set, sphere_values):
     p, nr, _ = sphere_set
     for kind in _objectives.OBJECTIVES:
-        batched = np.asarray(_objective(kind, 3)(p[:5], nr[:5]))
+        batched = sphere_values(kind)[:5]
         one = jax.jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, M, kind, CENTER3, 1.0)[0])
         np.testing.assert_allclose(batched, [one(p[i], nr[i]) for i in range(5)], rtol=1e-9, atol=1e-12)
 
@@ -111,6 +133,11 @@ def _finite_difference(f, x, h=1e-6):
         e[idx] = h
         g[idx] = (f(x + e) - f(x - e)) / (2 * h)
     return g
+
+
+#: Rows of every batch given to :func:`_value_and_grad` (one compiled shape per kind): the
+#: :func:`_perturbed` copies of a 4-contact 3D grasp, and the grasp itself.
+GRAD_ROWS = 2 * 2 * 4 * 3 + 1
 
 
 @functools.cache
@@ -146,6 +173,7 @@ def test_gradients_match_finite_differences(kind):
         p, nr = _sphere_grasps(rng, 1, 4)
         p, nr = p[0] + 0.05 * rng.normal(size=(4, 3)), nr[0]
         P, N = _perturbed(p, nr, h)
+        assert len(P) == GRAD_ROWS
         values, (gp, gn) = (np.asarray(v) if not isinstance(v, tuple) else tuple(map(np.asarray, v))
                             for v in f(P, N))
         assert np.isfinite(gp).all() and np.isfinite(gn).all()
@@ -177,12 +205,16 @@ def test_min_weight_is_differentiable(sphere_set):
 
 def test_objectives_are_finite_on_degenerate_grasps():
     """All contacts at one point with one normal, and two contacts in 3D: finite values and
-    gradients; a 2-finger 3D grasp is never force-closure, so the closure objectives are <= 0."""
+    gradients; a 2-finger 3D grasp is never force-closure, so the closure objectives are <= 0.
+    The two 4-contact grasps are repeated to :data:`GRAD_ROWS` rows: the finite differences'
+    compiled programs."""
     same = np.tile([1.0, 0.0, 0.0], (4, 1))
     two = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
     for kind in _objectives.OBJECTIVES:
         for p in (same, two):
             P = np.stack([p, p + 1e-3 * np.eye(len(p), 3)])
+            if len(p) == 4:
+                P = P[np.arange(GRAD_ROWS) % 2]
             v, (gp, gn) = _value_and_grad(kind, 3)(P, P)
             assert np.isfinite(np.asarray(v)).all(), kind
             assert np.isfinite(np.asarray(gp)).all() and np.isfinite(np.asarray(gn)).all(), kind
@@ -190,11 +222,11 @@ def test_objectives_are_finite_on_degenerate_grasps():
                 assert np.all(np.asarray(v) <= 1e-7), kind
 
 
-def test_public_objective_batches_and_differentiates(sphere_set):
+def test_public_objective_batches_and_differentiates(sphere_set, sphere_values):
     p, nr, ev = sphere_set
     value = np.asarray(gj.objective(p[:40].reshape(4, 10, 4, 3), nr[:40].reshape(4, 10, 4, 3), mu=MU,
                                     num_edges=M)).reshape(40)
-    np.testing.assert_allclose(value, np.asarray(_objective("closure", 3)(p[:40], nr[:40])), atol=1e-12)
+    np.testing.assert_allclose(value, sphere_values("closure")[:40], atol=1e-12)
     g = jax.grad(lambda x: gj.objective(x, nr[:8], mu=MU, num_edges=M, kind="min_weight").sum())(jnp.asarray(p[:8]))
     assert g.shape == (8, 4, 3) and np.isfinite(np.asarray(g)).all()
     with pytest.raises(ValueError, match="kind must be one of"):

@@ -34,10 +34,10 @@ def glass():
     return _objects().load("glass")
 
 
-def _subprocess_env(tmp_path_factory, **extra):
+def _subprocess_env(xla_cache, **extra):
     env = dict(os.environ)
     env.pop("XLA_FLAGS", None)
-    env["GRASP_JAX_CACHE"] = str(tmp_path_factory.getbasetemp() / "xla-cache")
+    env["GRASP_JAX_CACHE"] = xla_cache  # the suite's (conftest.py)
     env["PYTHONWARNINGS"] = "ignore::DeprecationWarning"
     env.update(extra)
     return env
@@ -204,12 +204,12 @@ def test_slices_and_part_names():
     assert [c["points"].tolist() for c in got] == [[1, 2, 3, 4, 5], [6, 7, 8, 9, 10], [11]]
 
 
-def test_configure_cpu_devices_in_a_fresh_process(tmp_path_factory):
+def test_configure_cpu_devices_in_a_fresh_process(xla_cache):
     code = (
         "import grasp_jax.devices as p, jax; print(p.configure_cpu_devices(3)); "
         "print(len(jax.devices())); print(p.configure_cpu_devices(2))"
     )
-    env = _subprocess_env(tmp_path_factory)
+    env = _subprocess_env(xla_cache)
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["3", "3", "None"]
@@ -362,14 +362,14 @@ def test_epsilon_round_off_is_not_counted_as_force_closure(tmp_path, monkeypatch
 
 
 @pytest.mark.parametrize("devices", ["2"])
-def test_two_cpu_devices_give_the_single_device_results(tmp_path, tmp_path_factory, devices):
+def test_two_cpu_devices_give_the_single_device_results(tmp_path, xla_cache, devices):
     """Sharding a chunk over two CPU devices changes nothing but the speed: the same verdicts,
     and Q equal to within the LP tolerance (the sharded program is compiled separately, so its
     rounding may differ in the last digits)."""
     outs = {}
     for count in ("1", devices):
         out = tmp_path / f"d{count}.npz"
-        env = _subprocess_env(tmp_path_factory, XLA_FLAGS=f"--xla_force_host_platform_device_count={count}")
+        env = _subprocess_env(xla_cache, XLA_FLAGS=f"--xla_force_host_platform_device_count={count}")
         run = subprocess.run(
             [sys.executable, "-m", "grasp_jax", "sample", "glass", "--num", str(NUM), "--seed", "3",
              "--chunk", str(CHUNK), "--out", str(out), "--json"],
@@ -385,7 +385,7 @@ def test_two_cpu_devices_give_the_single_device_results(tmp_path, tmp_path_facto
     np.testing.assert_allclose(a["quality"], b["quality"], rtol=0, atol=1e-8)
 
 
-def test_two_processes_on_one_host(reference_run, tmp_path, tmp_path_factory):
+def test_two_processes_on_one_host(reference_run, tmp_path, xla_cache):
     """The multi-host path for real, with two processes on this machine (one CPU device each):
     each scores its slice, and the two files concatenate to the single-process result."""
     import socket
@@ -396,7 +396,7 @@ def test_two_processes_on_one_host(reference_run, tmp_path, tmp_path_factory):
         port = s.getsockname()[1]
     procs = []
     for i in range(2):
-        env = _subprocess_env(tmp_path_factory, JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
+        env = _subprocess_env(xla_cache, JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
                               JAX_NUM_PROCESSES="2", JAX_PROCESS_ID=str(i))
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "grasp_jax", "sample", "glass", "--num", str(NUM), "--seed", "3", "--chunk",
