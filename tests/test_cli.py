@@ -212,20 +212,24 @@ def test_user_mistakes_in_a_process(env, mistakes_dir):
     assert sorted(p.name for p in mistakes_dir.iterdir()) == ["empty.npz", "garbage.obj"]
 
 
-def _default_sigint():
-    """In the child: SIGINT handled by default even where the suite itself was started with it
-    ignored (a background job of a non-interactive shell), as in a user's terminal; Python installs
-    its KeyboardInterrupt handler only over the default action."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def _start_long_run(env, cwd, out):
-    return subprocess.Popen(
-        [sys.executable, "-m", "grasp_jax", "sample", "glass", "--num", "5000000", "--chunk", NUM,
-         "--out", out, "--quiet"],
-        env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=_default_sigint,
-    )
+    """The run, with SIGINT handled by default even where the suite itself was started with it
+    ignored (a background job of a non-interactive shell), as in a user's terminal: an ignored
+    signal stays ignored across ``exec``, and Python installs its KeyboardInterrupt handler only
+    over the default action. Set in this process around the start, not in a ``preexec_fn``: forking
+    a process that runs JAX's threads warns (an error here) and may deadlock the child."""
+    ignored = signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-m", "grasp_jax", "sample", "glass", "--num", "5000000", "--chunk", NUM,
+             "--out", out, "--quiet"],
+            env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+    finally:
+        if ignored:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _wait_for_data(proc, directory: Path, timeout=120):
@@ -244,9 +248,14 @@ def _wait_for_data(proc, directory: Path, timeout=120):
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGKILL, -9)])
 def test_interrupted_run_leaves_no_output(env, tmp_path, sig, code):
     proc = _start_long_run(env, tmp_path, "big.npz" if sig != signal.SIGTERM else "big.parquet")
-    _wait_for_data(proc, tmp_path)
-    proc.send_signal(sig)
-    _, stderr = proc.communicate(timeout=120)
+    try:
+        _wait_for_data(proc, tmp_path)
+        proc.send_signal(sig)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:  # the test failed or was interrupted: no 5-million-grasp run left behind
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == code, stderr
     assert "Traceback" not in stderr
     names = [p.name for p in tmp_path.iterdir()]

@@ -70,7 +70,7 @@ def sphere_values(sphere_set):
 
 @pytest.mark.parametrize("kind", ["closure", "closure_any", "min_weight"])
 def test_positive_exactly_when_force_closure_3d(sphere_set, sphere_values, kind):
-    p, nr, ev = sphere_set
+    _, _, ev = sphere_set
     value = sphere_values(kind)
     fc = np.asarray(ev.force_closure)
     assert 0.2 < fc.mean() < 0.9
@@ -102,7 +102,7 @@ def test_min_weight_sign_agrees_with_highs(sphere_set, sphere_values):
 
 
 def test_closure_is_q_where_the_torque_term_does_not_bind(sphere_set, sphere_values):
-    p, nr, ev = sphere_set
+    _, _, ev = sphere_set
     value = sphere_values("closure")
     fc, q = np.asarray(ev.force_closure), np.asarray(ev.quality)
     equal = np.abs(value - q) < 1e-7
@@ -223,7 +223,7 @@ def test_objectives_are_finite_on_degenerate_grasps():
 
 
 def test_public_objective_batches_and_differentiates(sphere_set, sphere_values):
-    p, nr, ev = sphere_set
+    p, nr, _ = sphere_set
     value = np.asarray(gj.objective(p[:40].reshape(4, 10, 4, 3), nr[:40].reshape(4, 10, 4, 3), mu=MU,
                                     num_edges=M)).reshape(40)
     np.testing.assert_allclose(value, sphere_values("closure")[:40], atol=1e-12)
