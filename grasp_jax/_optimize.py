@@ -55,12 +55,6 @@ SEGMENTS = 20
 #: :data:`CONVERGED_WINDOW` of the steps.
 CONVERGED_TOL = 1e-3
 CONVERGED_WINDOW = 0.25
-#: Interior-point iterations of each LP of a step (``None``: the first-pass budget of
-#: ``_constants.first_pass_iterations``, 10 for 4 fingers and 8 edges). A vmapped LP loop runs
-#: until its slowest problem is done; a step cannot gather stragglers as ``evaluate`` does, so the
-#: LPs stop at this budget and an unfinished one gives its best iterate (``best_effort``): a
-#: slightly inexact gradient, never a verdict (the reported grasps are scored by ``evaluate``).
-STEP_ITERATIONS: int | None = None
 #: Distinct grasps: contacts closer than this fraction of the object's radius are the same.
 DISTINCT_TOL = 0.01
 
@@ -274,6 +268,7 @@ def optimize(
     normals: str = "smooth",
     dtype="float64",
     monitor: bool = True,
+    iterations: int | None = None,
     progress: bool = False,
 ) -> OptimizeResult:
     """Move the contacts of many grasps over an object's surface to maximize an objective.
@@ -305,6 +300,13 @@ def optimize(
         dtype: ``"float64"`` (computed under a scoped x64 switch) or ``"float32"``.
         monitor: record Q per step (``quality_history``) for objectives other than the closure
             ones (costs one quality LP per step; free for the closure objectives).
+        iterations: interior-point iterations of each LP of a step (default: the first-pass
+            budget of :func:`grasp_jax.evaluate`, 10 for 4 fingers and 8 edges). A vmapped LP loop
+            runs until its slowest problem is done and a step cannot gather stragglers as
+            ``evaluate`` does, so the LPs stop there and an unfinished one gives its best iterate:
+            a slightly inexact gradient, never a verdict (the reported grasps are scored by
+            ``evaluate`` with its full budget). 20 gave no better convergence (a cylinder, 512
+            starts, 60 steps).
         progress: show a progress bar over the steps.
 
     Returns:
@@ -319,6 +321,8 @@ def optimize(
     steps = check_int("steps", steps)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
+    if iterations is not None:
+        iterations = check_int("iterations", iterations)
     if learning_rate is None:
         learning_rate = DEFAULT_LEARNING_RATE if init is None else REFINE_LEARNING_RATE
     learning_rate = check_scalar("learning_rate", learning_rate)
@@ -350,7 +354,7 @@ def optimize(
             lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
         )
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
-        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, progress)
+        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress)
         points, normals_out, best_value, history, qualities = result
         evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges)
     reason = _end_reasons(np.asarray(evaluation.force_closure), history)
@@ -363,7 +367,7 @@ def optimize(
     )
 
 
-def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, progress):
+def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iterations, progress):
     """All starts through ``steps`` steps, :data:`SEGMENTS` compiled calls of equal length."""
     starts, n = contacts.face.shape[:2]
     dtype = contacts.coords.dtype
@@ -372,7 +376,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, prog
     state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, steps))
-    budget = STEP_ITERATIONS or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
+    budget = iterations or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
                length=length, total=steps, monitor=monitor, iterations=budget)
     mu = jnp.asarray(mu, dtype)

@@ -231,3 +231,30 @@ def test_public_objective_batches_and_differentiates(sphere_set, sphere_values):
     assert g.shape == (8, 4, 3) and np.isfinite(np.asarray(g)).all()
     with pytest.raises(ValueError, match="kind must be one of"):
         gj.objective(p, nr, mu=MU, kind="epsilon")
+
+
+def test_closure_has_no_plateau_on_the_quality_floor(sphere_set, sphere_values):
+    """``delta* = -1`` (the first contact alone, a constant) on many grasps that are not in
+    equilibrium. There ``"closure"`` is ``delta* + 4 T`` wherever ``T < 0``, so it varies with
+    the torque margin even where ``-1 < 4 T < 0`` (the plain minimum was the constant -1 there),
+    with a gradient that finite differences confirm."""
+    p, nr, _ = sphere_set
+    monitors = jax.jit(jax.vmap(lambda a, b: _objectives.objective_one(a, b, MU, M, "closure", CENTER3, 1.0)))
+    value, mon = monitors(p[:120], nr[:120])
+    value, delta, torque = map(np.asarray, (value, mon["delta"], mon["torque"]))
+    np.testing.assert_allclose(value, sphere_values("closure")[:120], atol=1e-12)
+    floor = np.abs(delta + 1) < 1e-9
+    assert floor.mean() > 0.1
+    both = (delta < 0) & (torque < 0)
+    np.testing.assert_allclose(value[both], (delta + torque)[both], atol=1e-12)
+    pulled = np.flatnonzero(floor & (torque > -0.9) & (torque < -1e-3))
+    assert len(pulled) >= 3
+    assert np.all(value[pulled] < -1 - 1e-3)
+    h = 1e-6
+    P, N = _perturbed(p[pulled[0]], nr[pulled[0]], h)
+    values, (gp, gn) = _value_and_grad("closure", 3)(P, N)
+    values, gp, gn = map(np.asarray, (values, gp, gn))
+    fd = (values[:-1:2] - values[1:-1:2]) / (2 * h)
+    grad = np.concatenate([gp[-1].ravel(), gn[-1].ravel()])
+    assert np.abs(fd).max() > 1e-3
+    np.testing.assert_allclose(grad, fd, atol=2e-5 * max(1.0, np.abs(fd).max()))
