@@ -37,7 +37,7 @@ import optax
 from . import surfaces as _surfaces
 from ._api import _bind, evaluate
 from ._batch import map_grasps
-from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
+from ._constants import DEFAULT_NUM_EDGES, step_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
@@ -49,6 +49,10 @@ from ._validate import check_int, check_num_edges, check_scalar
 #: for refining given starts (``init``), which are near a good grasp already.
 DEFAULT_LEARNING_RATE = 0.3
 REFINE_LEARNING_RATE = 0.02
+#: From random starts the default optimizer restarts Adam (moments reset) after this fraction of
+#: the steps, at this fraction of the peak learning rate (:func:`default_optimizer`).
+RESTART_AT = 1 / 3
+RESTART_RATE = 1 / 6
 #: Segments of the step loop (one compiled call each; the progress bar advances per segment).
 SEGMENTS = 20
 #: A start has converged when its best objective rose by less than this over the last
@@ -241,11 +245,45 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
 
 
 @functools.cache
-def default_optimizer(steps: int, learning_rate: float = DEFAULT_LEARNING_RATE) -> optax.GradientTransformation:
+def default_optimizer(steps: int, learning_rate: float = DEFAULT_LEARNING_RATE,
+                      restart: bool = False) -> optax.GradientTransformation:
     """Adam with a cosine decay from ``learning_rate`` to 1% of it over ``steps`` (cached, so
-    that repeated calls reuse the compiled step)."""
-    schedule = optax.cosine_decay_schedule(learning_rate, decay_steps=steps, alpha=0.01)
-    return optax.adam(schedule)
+    that repeated calls reuse the compiled step).
+
+    ``restart`` (what :func:`optimize` uses from random starts): the decay spans the first
+    :data:`RESTART_AT` of the steps, then a fresh Adam (moments reset) decays from
+    :data:`RESTART_RATE` x ``learning_rate`` to 1% of that over the rest: the first phase finds
+    force-closure, the second climbs the ridges of Q that a fully decayed rate crawls along. Measured
+    (4 fingers, 1,024 random starts, 60 steps as 20 + 40, against one decay over 60): starts at a
+    local optimum (Q within 1% of 3 x 60 more refining steps) 12% -> 21% on the glass, 22% -> 40%
+    on a cylinder, 69% -> 76% on the sphere, force-closure fractions unchanged (>= 99.3%).
+    """
+    first = round(steps * RESTART_AT) if restart else steps
+    if not restart or first < 1 or steps - first < 1:
+        return optax.adam(optax.cosine_decay_schedule(learning_rate, decay_steps=steps, alpha=0.01))
+    explore = optax.adam(optax.cosine_decay_schedule(learning_rate, decay_steps=first, alpha=0.01))
+    climb = optax.adam(optax.cosine_decay_schedule(learning_rate * RESTART_RATE, decay_steps=steps - first,
+                                                   alpha=0.01))
+    return warm_restart(explore, climb, first)
+
+
+def warm_restart(first: optax.GradientTransformation, second: optax.GradientTransformation,
+                 boundary: int) -> optax.GradientTransformation:
+    """``first`` for ``boundary`` updates, then ``second`` from its initial state (for example
+    Adam with its moments reset: a warm restart)."""
+
+    def init(params):
+        return jnp.zeros((), jnp.int32), first.init(params), second.init(params)
+
+    def update(updates, state, params=None):
+        count, s1, s2 = state
+        u1, n1 = first.update(updates, s1, params)
+        u2, n2 = second.update(updates, s2, params)
+        early = count < boundary
+        pick = lambda a, b: jax.tree_util.tree_map(lambda x, y: jnp.where(early, x, y), a, b)
+        return pick(u1, u2), (count + 1, pick(n1, s1), pick(s2, n2))
+
+    return optax.GradientTransformation(init, update)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -287,7 +325,8 @@ def optimize(
             ``"closure"`` (default), ``"closure_any"``, ``"min_weight"``, ``"signed_q"``, ``"dfc"``,
             ``"dfc_eig"``.
         optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
-            object's radius (default: :func:`default_optimizer`, Adam with cosine decay). Pass the
+            object's radius (default: :func:`default_optimizer`, Adam with cosine decay, from
+            random starts restarted after a third of the steps). Pass the
             same object again to reuse the compiled program.
         learning_rate: peak learning rate of the default optimizer, in object radii per step
             (default :data:`DEFAULT_LEARNING_RATE` = 0.3 from random starts,
@@ -300,13 +339,12 @@ def optimize(
         dtype: ``"float64"`` (computed under a scoped x64 switch) or ``"float32"``.
         monitor: record Q per step (``quality_history``) for objectives other than the closure
             ones (costs one quality LP per step; free for the closure objectives).
-        iterations: interior-point iterations of each LP of a step (default: the first-pass
-            budget of :func:`grasp_jax.evaluate`, 10 for 4 fingers and 8 edges). A vmapped LP loop
-            runs until its slowest problem is done and a step cannot gather stragglers as
-            ``evaluate`` does, so the LPs stop there and an unfinished one gives its best iterate:
-            a slightly inexact gradient, never a verdict (the reported grasps are scored by
-            ``evaluate`` with its full budget). 20 gave no better convergence (a cylinder, 512
-            starts, 60 steps).
+        iterations: interior-point iterations of each LP of a step (default
+            ``_constants.step_iterations``: 6 for 4 fingers and 8 edges). A vmapped LP loop runs
+            until its slowest problem is done and a step cannot gather stragglers as ``evaluate``
+            does, so the LPs stop there and an unfinished one gives its best iterate: a slightly
+            inexact gradient, never a verdict (the reported grasps are scored by ``evaluate``
+            with its full budget).
         progress: show a progress bar over the steps.
 
     Returns:
@@ -330,7 +368,7 @@ def optimize(
         raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES))}; got {objective!r}")
     user_optimizer = optimizer is not None
     if optimizer is None:
-        optimizer = default_optimizer(steps, learning_rate)
+        optimizer = default_optimizer(steps, learning_rate, restart=init is None)
     elif not isinstance(optimizer, optax.GradientTransformation):
         raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
                         f"got {type(optimizer).__name__}")
@@ -376,7 +414,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, steps))
-    budget = iterations or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
+    budget = iterations or step_iterations(n * (num_edges if d == 3 else 2) + 1)
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
                length=length, total=steps, monitor=monitor, iterations=budget)
     mu = jnp.asarray(mu, dtype)
