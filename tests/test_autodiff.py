@@ -14,6 +14,7 @@ from scipy.optimize import linprog
 import grasp_jax as gj
 from grasp_jax import reference
 
+from _jit import jit
 from _grasps import MU, QUAD, STAR, grasps, sample_box, sample_cylinder, sample_polygon, sample_sphere
 
 N = {2: 3, 3: 4}  # fingers per dimension: one shape, one compilation per transformation
@@ -81,7 +82,7 @@ def _signed_delta_highs(points, normals) -> float:
 @functools.lru_cache(maxsize=None)
 def _grads(d: int):
     """Gradients of Q and of signed delta wrt points and normals, and jacrev of Q wrt points, in
-    one compiled function of a (B, n, d) batch."""
+    one compiled function of a (B, n, d) batch (the suite's compiler options, ``_jit.py``)."""
 
     def run(P, Nrm):
         q = lambda P, Nrm: gj.quality(P, Nrm, mu=MU)  # noqa: E731
@@ -91,12 +92,12 @@ def _grads(d: int):
         jac = jax.jacrev(q, argnums=1)(P, Nrm)
         return q(P, Nrm), s(P, Nrm), gq, gs, jac
 
-    return jax.jit(run)
+    return jit(run)
 
 
 @functools.lru_cache(maxsize=None)
 def _values():
-    return jax.jit(lambda P, Nrm: (gj.quality(P, Nrm, mu=MU), gj.quality(P, Nrm, mu=MU, signed=True)))
+    return jit(lambda P, Nrm: (gj.quality(P, Nrm, mu=MU), gj.quality(P, Nrm, mu=MU, signed=True)))
 
 
 def _perturbations(P, Nrm, h):

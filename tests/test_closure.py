@@ -14,6 +14,7 @@ from scipy.spatial import ConvexHull
 import grasp_jax as gj
 from grasp_jax import reference
 
+from _jit import jit
 from _grasps import (MU, QUAD, STAR, grasps, load_mesh, mesh_sampler, sample_box, sample_cylinder,
                      sample_polygon, sample_sphere)
 
@@ -64,7 +65,8 @@ def _with_paper(key) -> bool:
 
 @functools.lru_cache(maxsize=None)
 def _engine(m: int, paper: bool):
-    """evaluate (exact, and paper) and min_weight of a batch under one jit: one compilation."""
+    """evaluate (exact, and paper) and min_weight of a batch under one jit: one compilation
+    (with the suite's compiler options, ``_jit.py``)."""
 
     def run(points, normals):
         ev = gj.evaluate(points, normals, mu=MU, num_edges=m)
@@ -74,7 +76,7 @@ def _engine(m: int, paper: bool):
         paper_fc = gj.evaluate(points, normals, mu=MU, num_edges=m, torque_test="paper").force_closure
         return ev, margin, paper_fc
 
-    return jax.jit(run)
+    return jit(run)
 
 
 @pytest.fixture(scope="module")

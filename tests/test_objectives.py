@@ -2,11 +2,14 @@
 signs against the exact verdicts and HiGHS, values against Q, gradients against finite
 differences, vmap against a loop, finiteness everywhere.
 
-Compiling is most of this module's time, so the programs are few and shared: one batched objective
-per kind and dimension (:func:`_objective`), run on the whole 300-grasp sphere set
-(:func:`sphere_values`) by every 3D test that compares its values, and one batched value-and-gradient
-per kind (:func:`_value_and_grad`) of the 49-grasp batches of the finite differences
-(:data:`GRAD_ROWS`), which the degenerate grasps of 4 contacts are padded to."""
+Compiling is most of this module's time, so the programs are few and shared (and compiled with the
+suite's options, ``_jit.py``): one batched objective per closure kind and dimension
+(:func:`_objective`), run on the whole 300-grasp sphere set (:func:`sphere_values`) by every 3D test
+that compares its values, and one batched value-and-gradient per kind (:func:`_value_and_grad`) of
+the 49-grasp batches of the finite differences (:data:`GRAD_ROWS`), which the degenerate grasps of
+4 contacts are padded to and which gives the batched values of the vmap-against-a-loop test.
+Gradients of the public functions are taken under ``jit`` (op by op, they compile a program per
+operation)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ import pytest
 
 import grasp_jax as gj
 from grasp_jax import _objectives, reference
+
+from _jit import jit
 
 MU, M = 0.364, 4
 CENTER3 = np.zeros(3)
@@ -43,7 +48,7 @@ def _square_grasps(rng, count, n):
 def _objective(kind, d):
     """The batched objective ``kind`` in ``d`` dimensions, jitted once per kind and dimension."""
     center = np.zeros(d)
-    return jax.jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, center, 1.0)[0]))
+    return jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, center, 1.0)[0]))
 
 
 @pytest.fixture(scope="module")
@@ -119,11 +124,17 @@ def test_closure_any_does_not_depend_on_the_order(sphere_set, sphere_values):
 
 
 def test_vmap_equals_a_loop(sphere_set, sphere_values):
+    """The first grasps of a vmapped batch against the objective of each grasp alone; the batch is
+    the first :data:`GRAD_ROWS` sphere grasps through :func:`_value_and_grad` (the closure kinds
+    also through :func:`_objective`, on the whole set)."""
     p, nr, _ = sphere_set
     for kind in _objectives.OBJECTIVES:
-        batched = sphere_values(kind)[:5]
-        one = jax.jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, M, kind, CENTER3, 1.0)[0])
-        np.testing.assert_allclose(batched, [one(p[i], nr[i]) for i in range(5)], rtol=1e-9, atol=1e-12)
+        batched = np.asarray(_value_and_grad(kind, 3)(p[:GRAD_ROWS], nr[:GRAD_ROWS])[0])[:5]
+        one = jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, M, kind, CENTER3, 1.0)[0])
+        loop = [one(p[i], nr[i]) for i in range(5)]
+        np.testing.assert_allclose(batched, loop, rtol=1e-9, atol=1e-12, err_msg=kind)
+        if kind in ("closure", "closure_any", "min_weight"):
+            np.testing.assert_allclose(sphere_values(kind)[:5], loop, rtol=1e-9, atol=1e-12, err_msg=kind)
 
 
 def _finite_difference(f, x, h=1e-6):
@@ -144,7 +155,7 @@ GRAD_ROWS = 2 * 2 * 4 * 3 + 1
 def _value_and_grad(kind, d):
     """Batched value and gradient in points and normals, compiled once per objective."""
     one = lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, np.zeros(d), 1.0)[0]
-    return jax.jit(jax.vmap(jax.value_and_grad(one, argnums=(0, 1))))
+    return jit(jax.vmap(jax.value_and_grad(one, argnums=(0, 1))))
 
 
 def _perturbed(p, nr, h):
@@ -194,7 +205,7 @@ def test_min_weight_is_differentiable(sphere_set):
     """``jax.grad`` of ``gj.min_weight`` works (it used to fail on the while loop), is finite on
     every grasp, and matches finite differences."""
     p, nr, _ = sphere_set
-    g = jax.grad(lambda x: gj.min_weight(x, nr[:20], mu=MU, num_edges=M).sum())(jnp.asarray(p[:20]))
+    g = jit(jax.grad(lambda x: gj.min_weight(x, nr[:20], mu=MU, num_edges=M).sum()))(jnp.asarray(p[:20]))
     assert np.isfinite(np.asarray(g)).all()
     fc = np.flatnonzero(np.asarray(gj.min_weight(p[:20], nr[:20], mu=MU, num_edges=M)) > 1e-4)
     i = int(fc[0])
@@ -227,7 +238,8 @@ def test_public_objective_batches_and_differentiates(sphere_set, sphere_values):
     value = np.asarray(gj.objective(p[:40].reshape(4, 10, 4, 3), nr[:40].reshape(4, 10, 4, 3), mu=MU,
                                     num_edges=M)).reshape(40)
     np.testing.assert_allclose(value, sphere_values("closure")[:40], atol=1e-12)
-    g = jax.grad(lambda x: gj.objective(x, nr[:8], mu=MU, num_edges=M, kind="min_weight").sum())(jnp.asarray(p[:8]))
+    g = jit(jax.grad(lambda x: gj.objective(x, nr[:8], mu=MU, num_edges=M, kind="min_weight").sum()))(
+        jnp.asarray(p[:8]))
     assert g.shape == (8, 4, 3) and np.isfinite(np.asarray(g)).all()
     with pytest.raises(ValueError, match="kind must be one of"):
         gj.objective(p, nr, mu=MU, kind="epsilon")

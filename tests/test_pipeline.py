@@ -349,7 +349,9 @@ def test_epsilon_round_off_is_not_counted_as_force_closure(tmp_path, monkeypatch
     """On grasps exactly on the boundary of force-closure (contacts on parallel faces) qhull's
     epsilon is round-off, about 1e-17 (seen on pyvista_nut.ply); the summary must not count it as
     a force-closure verdict of the baseline that disagrees with Proposition 2."""
-    points = np.array([[[1.0, 0, 0], [-1.0, 0, 0]]] * 4)  # an antipodal pair: not force-closure
+    # An antipodal pair, each contact doubled: every contact on the x axis, so no torque about it,
+    # never force-closure; 4 contacts in 3D, the suite's common grasp shape (no program of its own).
+    points = np.array([[[1.0, 0, 0], [-1.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0]]] * 4)
     np.savez(tmp_path / "pair.npz", points=points, normals=points)
 
     def round_off(points, normals, **kwargs):
