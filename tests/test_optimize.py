@@ -4,6 +4,7 @@ reproducibility, the exact final scores, de-duplication and input errors."""
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
@@ -23,8 +24,7 @@ def rectangle():
 
 @pytest.fixture(scope="module")
 def sphere_run():
-    return gj.optimize(objects.Sphere(0.05), 3, fingers=3, mu=MU, num_edges=M, starts=48, steps=40,
-                       learning_rate=0.05)
+    return gj.optimize(objects.Sphere(0.05), 3, fingers=3, mu=MU, num_edges=M, starts=48, steps=40)
 
 
 def test_two_contacts_on_a_rectangle_converge_to_an_antipodal_grasp(rectangle):
@@ -75,12 +75,11 @@ def test_reported_scores_are_evaluate_of_the_reported_grasps(sphere_run):
 
 
 def test_reproducible_for_a_key_different_across_keys(sphere_run):
-    again = gj.optimize(objects.Sphere(0.05), 3, fingers=3, mu=MU, num_edges=M, starts=48, steps=40,
-                        learning_rate=0.05)
+    again = gj.optimize(objects.Sphere(0.05), 3, fingers=3, mu=MU, num_edges=M, starts=48, steps=40)
     np.testing.assert_array_equal(again.points, sphere_run.points)
     np.testing.assert_array_equal(again.history, sphere_run.history)
     other = gj.optimize(objects.Sphere(0.05), jax.random.key(4), fingers=3, mu=MU, num_edges=M, starts=48,
-                        steps=40, learning_rate=0.05)
+                        steps=40)
     assert not np.allclose(other.initial_points, sphere_run.initial_points)
 
 
@@ -136,6 +135,7 @@ def test_distinct_ignores_the_order_of_contacts_2_to_n():
         ({"normals": "bumpy"}, ValueError, "normals must be"),
         ({"dtype": "int8"}, ValueError, "dtype must be"),
         ({"key": "seed"}, ValueError, "key must be"),
+        ({"iterations": 0}, ValueError, "iterations must be a positive integer"),
     ],
 )
 def test_bad_input_is_one_clear_error(kwargs, error, words):
@@ -146,3 +146,19 @@ def test_bad_input_is_one_clear_error(kwargs, error, words):
         gj.optimize(obj, key, **args)
     assert words in str(info.value)
     assert "\n" not in str(info.value)
+
+
+def test_warm_restart_runs_the_second_optimizer_from_its_initial_state():
+    """The default optimizer's restart: ``first`` for ``boundary`` updates, then ``second`` exactly
+    as a fresh ``second`` would run on the same gradients."""
+    first, second = optax.adam(0.3), optax.adam(0.05)
+    both = _optimize.warm_restart(first, second, 3)
+    grads = [jnp.full((2, 3), g) for g in (1.0, -2.0, 0.5, 3.0, -1.0, 0.25)]
+    state, fresh_a, fresh_b = both.init(grads[0]), first.init(grads[0]), second.init(grads[0])
+    for k, g in enumerate(grads):
+        u, state = both.update(g, state)
+        if k < 3:
+            ref, fresh_a = first.update(g, fresh_a)
+        else:
+            ref, fresh_b = second.update(g, fresh_b)
+        np.testing.assert_allclose(u, ref, rtol=1e-12)
