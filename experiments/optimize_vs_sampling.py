@@ -29,10 +29,10 @@ budget (it always runs one), so its time lands within half a round of the budget
 kept after each round for the Q-vs-time curves are not.
 
 Tuning rule (the same for every row; nothing is set per object): ``--starts`` 256 per round (the
-smallest batch ``gj.optimize`` compiles: fewer cost the same), ``--steps`` 100, and Adam with a
-peak learning rate ``--learning-rate`` of 0.4 object radii per step and cosine decay to 1% (the
-smallest rate at which >= 99.5% of random starts end force-closure on the glass with 4 fingers,
-in the sweep of ``experiments/bench_optimize.py``) from random starts; sample-then-refine uses
+smallest batch ``gj.optimize`` compiles: fewer cost the same), ``--steps`` 100, and from random
+starts ``gj.optimize``'s default optimizer (``--learning-rate``: its default peak of 0.3 object
+radii per step, cosine decay, Adam restarted after a third of the steps at a sixth of the rate);
+sample-then-refine uses
 ``gj.optimize``'s default 0.02 (``--refine-learning-rate``): its starts are already good, and
 large steps would throw them across the object.
 
@@ -89,10 +89,15 @@ DEFAULT_OBJECTS = ("glass", "part", "sphere", "ycb_011_banana.obj", "trimesh_fea
 METHODS = {"sampling": None, "optimize": "closure", "refine": "closure", "dfc": "dfc",
            "dfc_eig": "dfc_eig", "min_weight": "min_weight", "signed_q": "signed_q"}
 BASELINES = ("dfc", "dfc_eig", "min_weight", "signed_q")
-#: Peak learning rate of the optimizers (object radii per step, cosine decay to 1%), the same for
-#: every row: the smallest rate of the sweep 0.02 .. 0.8 at which >= 99.5% of random starts end
-#: force-closure on the glass with 4 fingers (``bench_optimize.py``, learning-rate table).
-LEARNING_RATE = 0.4
+
+
+def gj_rate(rate):
+    """The peak learning rate from random starts: ``--learning-rate`` or ``gj.optimize``'s default."""
+    from grasp_jax._optimize import DEFAULT_LEARNING_RATE
+
+    return DEFAULT_LEARNING_RATE if rate is None else rate
+
+
 #: Refining sampled grasps (already good): ``gj.optimize``'s default, 0.02 radii per step, so that a
 #: start climbs to its own local optimum instead of being thrown across the object.
 REFINE_LEARNING_RATE = 0.02
@@ -307,8 +312,8 @@ def main():
     ap.add_argument("--baseline-fingers", type=int, nargs="+", default=None,
                     help="finger counts the baselines run on (default: all of --fingers)")
     ap.add_argument("--steps", type=int, default=100, help="optimizer steps per start (default: %(default)s)")
-    ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE,
-                    help="peak Adam learning rate, object radii per step (default: %(default)s)")
+    ap.add_argument("--learning-rate", type=float, default=None,
+                    help="peak Adam learning rate from random starts, object radii per step (default: gj.optimize's)")
     ap.add_argument("--refine-learning-rate", type=float, default=REFINE_LEARNING_RATE,
                     help="peak learning rate when refining sampled grasps (default: %(default)s)")
     ap.add_argument("--devices", type=int, default=None, help="XLA CPU devices (default: one per core)")
@@ -469,8 +474,9 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
         f"Friction {args.friction_deg:g} deg (mu = {mu:.3f}), m = {args.edges} cone edges, {devices} XLA CPU "
         f"devices, budget {args.seconds:g} s of work per method and row (sampling: the larger of that and the "
         f"optimizers' time in its row). Optimizers: rounds of {args.starts} starts x {args.steps} steps, Adam "
-        f"(peak learning rate {args.learning_rate:g} object radii per step from random starts, "
-        f"{args.refine_learning_rate:g} when refining, cosine decay to 1%); "
+        f"(peak learning rate {gj_rate(args.learning_rate):g} object radii per step from random starts, cosine decay "
+        f"to 1%, restarted after a third of the steps at a sixth of the rate; {args.refine_learning_rate:g} when "
+        f"refining, cosine decay to 1%); "
         f"refine samples for {args.refine_fraction:.0%} of the budget, then optimizes the best distinct "
         f"sampled grasps. Sampling rounds of {args.sample_round:,} grasps uniform by area. 'median Q best "
         f"{TOP}': over the best {TOP} distinct force-closure grasps (grid of {args.distinct_tol:g} object "
@@ -533,7 +539,7 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
     lines += ["", *notes, timer.report()]
     meta = dict(args={k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
                 mu=mu, devices=devices, jax=jax.__version__, grasp_jax=gj.__version__,
-                learning_rate=args.learning_rate, compilation_cache=cache, top=TOP,
+                learning_rate=gj_rate(args.learning_rate), compilation_cache=cache, top=TOP,
                 timer=timer.report(), notes=notes, **(extra_meta or {}))
     meta.setdefault("git", _git_state())
     write_json(out, dict(meta=meta, warmups=warmups, results=results))
