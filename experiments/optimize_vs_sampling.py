@@ -496,7 +496,7 @@ def report(out: Path, args, mu: float, devices: int, results: list, warmups: lis
         lines.append("\n## Baselines: the field's energies, scored by the exact test\n")
         lines.append("Each objective is maximized from the same random starts for the same time; 'objective "
                      "p50' is the median over starts of the objective the optimizer maximized at its "
-                     "reported grasp (`closure`: min(signed Q, 4 T); `dfc`, `dfc_eig`: minus the energy; "
+                     "reported grasp (`closure`: min(signed Q, 4 T, signed Q + 4 T); `dfc`, `dfc_eig`: minus the energy; "
                      "`min_weight`: K l*; `signed_q`: signed Q). 'not FC' counts the results the exact test "
                      "rejects.\n")
         lines.append(table(["object", "fingers", "objective", "starts", "FC fraction", "not FC",
