@@ -96,7 +96,9 @@ class OptimizeResult:
         objective: ``(S,)`` the objective at ``points``.
         history: ``(S, steps)`` the objective at each step's iterate.
         quality_history: ``(S, steps)`` Q of each step's iterate where its closure objective is
-            positive (force-closure), else 0; ``None`` when not monitored.
+            positive (force-closure), else 0; ``None`` when not monitored. From the step's LPs,
+            whose short budget (``iterations``) leaves a few unfinished: those are within about
+            1e-3 of ``evaluate``'s Q.
         reason: ``(S,) int8`` :class:`EndReason`.
         initial_points: ``(S, n, d)`` the starts, on the surface.
         objective_name, normal_kind: static strings; steps, seconds: the budget and the wall time;
