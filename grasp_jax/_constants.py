@@ -35,15 +35,6 @@ def first_pass_iterations(num_vars: int) -> int:
     return 14 if num_vars <= 128 else 16
 
 
-def step_iterations(num_vars: int) -> int:
-    """Budget of each LP in a step of ``gj.optimize`` (unfinished LPs give their best iterate):
-    4 below :func:`first_pass_iterations`. With 4 fingers and 8 edges (33 columns), 1,024 random
-    starts: 6 iterations cost 10 to 25% less per step than 10 and converged as well (force-closure
-    fraction and median Q after 60 or 100 steps on the sphere, a cylinder, the glass and the
-    mechanical part); 20 did no better."""
-    return first_pass_iterations(num_vars) - 4
-
-
 @dataclasses.dataclass(frozen=True)
 class Tolerances:
     """Numerical thresholds for one floating-point type.

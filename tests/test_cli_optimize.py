@@ -145,16 +145,13 @@ def test_sample_then_refine(runs):
     sampled, _ = storage.read_results(d / "s.npz")
     ranked = np.lexsort((np.arange(64), -sampled["quality"], ~sampled["force_closure"]))
     np.testing.assert_array_equal(best.index, ranked[:16])
-    # the first step scores the starts themselves (Q where force-closure; a step's LPs stop at its
-    # short budget, so an unfinished one is off by about 1e-3), and the reported grasp is the
-    # best iterate by the objective
+    # the first step scores the starts themselves (Q where force-closure), and the reported
+    # grasp is the best iterate by the objective
     q0 = np.where(sampled["force_closure"], sampled["quality"], 0.0)[best.index]
-    close = np.abs(arrays["quality_history"][:, 0] - q0) < 1e-7
-    assert close.mean() >= 0.75
-    np.testing.assert_allclose(arrays["quality_history"][:, 0], q0, atol=5e-3)
+    np.testing.assert_allclose(arrays["quality_history"][:, 0], q0, atol=1e-7)
     # the reported iterate: the best Q among force-closure ones, else the best objective
     assert np.all(arrays["objective"] <= arrays["history"].max(axis=1) + 1e-12)
-    assert np.all(arrays["quality"] >= arrays["quality_history"].max(axis=1) - 5e-3)
+    assert np.all(arrays["quality"] >= arrays["quality_history"].max(axis=1) - 1e-9)
     report = json.loads(outs["from"][0])
     assert report["starts"] == 16 and report["force_closure"] == int(arrays["force_closure"].sum())
     assert report["distinct_force_closure"] <= report["force_closure"]
