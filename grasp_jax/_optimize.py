@@ -199,13 +199,14 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool,
              iterations: int):
     """Advance one start ``length`` steps. ``args``: the leaves of the start's state
-    ``(contacts, optimizer state, best contacts, best objective, best Q)`` (built in :func:`_run`),
-    then ``shared = (surface, mu, offset)``.
+    ``(contacts, optimizer state, travel, best contacts, best objective, best Q)`` (built in
+    :func:`_run`; ``travel: (n, d)`` is the sum of the updates so far, the ``params`` the optimizer
+    sees), then ``shared = (surface, mu, offset)``.
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
     *leaves, (surface, mu, offset) = args
-    contacts, opt_state, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
+    contacts, opt_state, travel, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
     n, d = contacts.face.shape[0], surface.dim
     dtype = contacts.coords.dtype
     zeros = jnp.zeros((n, d), dtype)
@@ -217,10 +218,10 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
                              iterations, best_effort=True)
 
     def step(carry, i):
-        contacts, opt_state, best, best_value, best_q = carry
+        contacts, opt_state, travel, best, best_value, best_q = carry
         (val, mon), grad = jax.value_and_grad(value, has_aux=True)(zeros, contacts)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
-        updates, new_opt = optimizer.update(-grad, opt_state, zeros)
+        updates, new_opt = optimizer.update(-grad, opt_state, travel)
         moved = jax.vmap(surface.retract)(contacts, updates * surface.scale)
         active = offset + i < total
         keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)
@@ -238,9 +239,10 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
         best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, contacts)
         best_value = jnp.where(better, val, best_value)
         best_q = jnp.where(better, q, best_q)
-        return (keep(moved, contacts), keep(new_opt, opt_state), best, best_value, best_q), (val, q)
+        new = (moved, new_opt, travel + updates)
+        return (*keep(new, (contacts, opt_state, travel)), best, best_value, best_q), (val, q)
 
-    carry = (contacts, opt_state, best, best_value, best_q)
+    carry = (contacts, opt_state, travel, best, best_value, best_q)
     carry, (values, qualities) = jax.lax.scan(step, carry, jnp.arange(length))
     return tuple(jax.tree_util.tree_leaves(carry)), values, qualities
 
@@ -328,7 +330,11 @@ def optimize(
         optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
             object's radius (default: :func:`default_optimizer`, Adam with cosine decay, from
             random starts restarted after a third of the steps). Pass the
-            same object again to reuse the compiled program.
+            same object again to reuse the compiled program. Its ``params`` are the sum of its
+            updates so far (the displacement from the start, before the surface's retraction), so
+            that transformations which read them (``optax.scale_by_lbfgs``, weight decay, here
+            towards the start) see consistent iterates; line searches that need the objective
+            (``optax.lbfgs()``'s ``value_fn``) are refused with a ``TypeError``.
         learning_rate: peak learning rate of the default optimizer, in object radii per step
             (default :data:`DEFAULT_LEARNING_RATE` = 0.3 from random starts,
             :data:`REFINE_LEARNING_RATE` = 0.02 with ``init``).
@@ -376,6 +382,7 @@ def optimize(
         raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
                         f"got {type(optimizer).__name__}")
     dtype = _check_dtype(dtype)
+    _check_optimizer(optimizer, (fingers, surface.dim))
     init_points = None if init is None else _check_init(init, fingers, surface.dim)
     if init_points is None:
         starts = check_int("starts", starts)
@@ -414,7 +421,8 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     dtype = contacts.coords.dtype
     d = surface.dim
     opt_state = jax.vmap(optimizer.init)(jnp.zeros((starts, n, d), dtype))
-    state = (contacts, opt_state, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
+    travel = jnp.zeros((starts, n, d), dtype)
+    state = (contacts, opt_state, travel, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, steps))
     budget = iterations or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
@@ -441,7 +449,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
                             median=f"{np.median(best):.3f}")
     if bar is not None:
         bar.close()
-    contacts, _, best, best_value, _ = jax.tree_util.tree_unflatten(treedef, leaves)
+    contacts, _, _, best, best_value, _ = jax.tree_util.tree_unflatten(treedef, leaves)
     points, normals = jax.vmap(jax.vmap(surface.embed))(best)
     history = np.concatenate(values, axis=1)[:, :steps]
     track = monitor or kind in _CLOSURE_KINDS
@@ -483,6 +491,18 @@ def _check_dtype(dtype):
     if dt not in (np.float32, np.float64):
         raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}")
     return dt
+
+
+def _check_optimizer(optimizer: optax.GradientTransformation, shape: tuple) -> None:
+    """One abstract update (shapes only, nothing computed): an optimizer that needs more than
+    ``update(updates, state, params)`` gets one clear error instead of a failure inside the step."""
+    probe = jax.ShapeDtypeStruct(shape, np.float32)
+    try:
+        jax.eval_shape(lambda p: optimizer.update(p, optimizer.init(p), p), probe)
+    except TypeError as e:
+        raise TypeError(f"the optimizer's update(updates, state, params) failed ({e}); gj.optimize gives an "
+                        "optimizer its updates and params only, no value, grad or value_fn: a line search such as "
+                        "optax.lbfgs()'s cannot run here (optax.scale_by_lbfgs() without one can)") from None
 
 
 def _check_key(key):

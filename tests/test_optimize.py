@@ -136,6 +136,7 @@ def test_distinct_ignores_the_order_of_contacts_2_to_n():
         ({"dtype": "int8"}, ValueError, "dtype must be"),
         ({"key": "seed"}, ValueError, "key must be"),
         ({"iterations": 0}, ValueError, "iterations must be a positive integer"),
+        ({"optimizer": optax.lbfgs()}, TypeError, "a line search such as optax.lbfgs()'s cannot run here"),
     ],
 )
 def test_bad_input_is_one_clear_error(kwargs, error, words):
@@ -146,6 +147,20 @@ def test_bad_input_is_one_clear_error(kwargs, error, words):
         gj.optimize(obj, key, **args)
     assert words in str(info.value)
     assert "\n" not in str(info.value)
+
+
+def test_the_optimizer_sees_the_sum_of_its_updates_as_params(rectangle):
+    """An optimizer whose update is ``target - params`` moves each contact by ``target`` once and
+    then stays: its params are the displacement so far (with params always 0 it would move again at
+    every step)."""
+    target = jnp.array([[0.0, 0.1], [0.0, -0.05]])
+    go_to = optax.GradientTransformation(lambda p: optax.EmptyState(), lambda u, s, p: (target - p, s))
+    init = np.array([[[-1.0, -0.2], [1.0, 0.1]]])
+    res = gj.optimize(rectangle, init=init, fingers=2, mu=MU, steps=5, optimizer=go_to)
+    np.testing.assert_allclose(res.history[:, 1:], np.broadcast_to(res.history[:, 1:2], (1, 4)), rtol=1e-12)
+    moved = init + np.asarray(target) * res.scale
+    assert np.allclose(res.points, init, atol=1e-9) or np.allclose(res.points, moved, atol=1e-9)
+    assert not np.allclose(res.history[:, 0], res.history[:, 1])
 
 
 def test_warm_restart_runs_the_second_optimizer_from_its_initial_state():
