@@ -10,6 +10,8 @@ from scipy.optimize import linprog
 
 from grasp_jax._lp import LP, Status, optimal_value, solve
 
+from _jit import jit
+
 ROWS, COLS = 5, 12  # one shape for every batch below: one compilation per transformation
 BATCH = 40
 
@@ -60,7 +62,7 @@ def _highs(A, b, c):
     return linprog(c, A_eq=A, b_eq=b, bounds=(0, None), method="highs")
 
 
-_solve_batch = jax.jit(jax.vmap(lambda A, b, c: solve(LP(A, b, c))[0]))
+_solve_batch = jit(jax.vmap(lambda A, b, c: solve(LP(A, b, c))[0]))
 
 
 def _solve(problems):
@@ -187,7 +189,7 @@ def test_single_problem_and_several_fused():
     rng = np.random.default_rng(3)
     A1, b1, c1 = _feasible(rng)
     A2, b2, c2 = _infeasible(rng, rows=3, cols=7)
-    s1, s2 = jax.jit(lambda l1, l2: solve(l1, l2))(LP(A1, b1, c1), LP(A2, b2, c2))
+    s1, s2 = jit(lambda l1, l2: solve(l1, l2))(LP(A1, b1, c1), LP(A2, b2, c2))
     assert int(s1.status) == Status.OPTIMAL and int(s2.status) == Status.INFEASIBLE
     assert float(s1.value) == pytest.approx(_highs(A1, b1, c1).fun, rel=1e-8)
     assert s1.x.shape == (COLS,) and s2.y.shape == (3,)
@@ -202,12 +204,12 @@ def test_solve_rejects_batched_problem():
 def test_too_few_iterations_is_not_converged():
     A, b, c = _feasible(np.random.default_rng(5))
     # under jit: op by op, the solver's loop compiles a program per operation
-    (sol,) = jax.jit(lambda A, b, c: solve(LP(A, b, c), iterations=1))(A, b, c)
+    (sol,) = jit(lambda A, b, c: solve(LP(A, b, c), iterations=1))(A, b, c)
     assert int(sol.status) == Status.NOT_CONVERGED
     assert float(sol.value) == 0.0
 
 
-_best_effort = jax.jit(jax.vmap(lambda A, b, c, k: solve(LP(A, b, c), iterations=k, best_effort=True)[0]))
+_best_effort = jit(jax.vmap(lambda A, b, c, k: solve(LP(A, b, c), iterations=k, best_effort=True)[0]))
 
 
 def test_best_effort_reports_the_best_iterate(problems):
@@ -244,7 +246,7 @@ def test_envelope_gradient_vs_highs_finite_differences():
         (sol,) = solve(jax.lax.stop_gradient(lp))
         return optimal_value(lp, sol)
 
-    grad = jax.jit(jax.vmap(jax.grad(value, argnums=(0, 1, 2))))
+    grad = jit(jax.vmap(jax.grad(value, argnums=(0, 1, 2))))
     problems = [_feasible(rng) for _ in range(6)]
     A, b, c = (jnp.asarray(np.stack(x)) for x in zip(*problems))
     gA, gb, gc = (np.asarray(g) for g in grad(A, b, c))
@@ -268,8 +270,8 @@ def test_optimal_value_zero_unless_optimal():
     rng = np.random.default_rng(7)
     A, b, c = (jnp.asarray(x) for x in _infeasible(rng))
     lp = LP(A, b, c)
-    (sol,) = jax.jit(solve)(lp)  # under jit: see test_too_few_iterations_is_not_converged
+    (sol,) = jit(solve)(lp)  # under jit: see test_too_few_iterations_is_not_converged
     assert int(sol.status) == Status.INFEASIBLE
     assert float(optimal_value(lp, sol)) == 0.0
-    g = jax.jit(jax.grad(lambda A, sol: optimal_value(LP(A, b, c), sol)))(A, sol)
+    g = jit(jax.grad(lambda A, sol: optimal_value(LP(A, b, c), sol)))(A, sol)
     assert np.all(np.asarray(g) == 0.0)

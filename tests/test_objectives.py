@@ -251,7 +251,7 @@ def test_closure_has_no_plateau_on_the_quality_floor(sphere_set, sphere_values):
     the torque margin even where ``-1 < 4 T < 0`` (the plain minimum was the constant -1 there),
     with a gradient that finite differences confirm."""
     p, nr, _ = sphere_set
-    monitors = jax.jit(jax.vmap(lambda a, b: _objectives.objective_one(a, b, MU, M, "closure", CENTER3, 1.0)))
+    monitors = jit(jax.vmap(lambda a, b: _objectives.objective_one(a, b, MU, M, "closure", CENTER3, 1.0)))
     value, mon = monitors(p[:120], nr[:120])
     value, delta, torque = map(np.asarray, (value, mon["delta"], mon["torque"]))
     np.testing.assert_allclose(value, sphere_values("closure")[:120], atol=1e-12)
