@@ -53,6 +53,10 @@ REFINE_LEARNING_RATE = 0.02
 #: the steps, at this fraction of the peak learning rate (:func:`default_optimizer`).
 RESTART_AT = 1 / 3
 RESTART_RATE = 1 / 6
+#: Steps over which the restarted Adam's rate rises linearly from where the first decay ended (1% of
+#: the peak) to its own peak: a fresh Adam's first updates are full-size, and without the ramp
+#: the median Q of the iterates fell to 0 for about 12 steps after the restart.
+RESTART_WARMUP = 5
 #: Segments of the step loop (one compiled call each; the progress bar advances per segment).
 SEGMENTS = 20
 #: A start has converged when its best objective rose by less than this over the last
@@ -255,18 +259,26 @@ def default_optimizer(steps: int, learning_rate: float = DEFAULT_LEARNING_RATE,
 
     ``restart`` (what :func:`optimize` uses from random starts): the decay spans the first
     :data:`RESTART_AT` of the steps, then a fresh Adam (moments reset) decays from
-    :data:`RESTART_RATE` x ``learning_rate`` to 1% of that over the rest: the first phase finds
+    :data:`RESTART_RATE` x ``learning_rate`` (reached by a linear ramp of :data:`RESTART_WARMUP`
+    steps from the first decay's end) to 1% of that over the rest: the first phase finds
     force-closure, the second climbs the ridges of Q that a fully decayed rate crawls along. Measured
     (4 fingers, 1,024 random starts, 60 steps as 20 + 40, against one decay over 60): starts at a
     local optimum (Q within 1% of 3 x 60 more refining steps) 12% -> 21% on the glass, 22% -> 40%
-    on a cylinder, 69% -> 76% on the sphere, force-closure fractions unchanged (>= 99.3%).
+    on a cylinder, 69% -> 76% on the sphere, force-closure fractions unchanged (>= 99.3%). The
+    ramp (1,024 starts, 60 steps): Q p25 0.907 -> 0.921 on the glass, Q p50 0.762 -> 0.801 and
+    force-closure 96.5% -> 97.2% on the YCB clamp, the same Q after 4x the steps.
     """
     first = round(steps * RESTART_AT) if restart else steps
     if not restart or first < 1 or steps - first < 1:
         return optax.adam(optax.cosine_decay_schedule(learning_rate, decay_steps=steps, alpha=0.01))
     explore = optax.adam(optax.cosine_decay_schedule(learning_rate, decay_steps=first, alpha=0.01))
-    climb = optax.adam(optax.cosine_decay_schedule(learning_rate * RESTART_RATE, decay_steps=steps - first,
-                                                   alpha=0.01))
+    peak, rest = learning_rate * RESTART_RATE, steps - first
+    warmup = min(RESTART_WARMUP, rest // 4)
+    if warmup:
+        schedule = optax.warmup_cosine_decay_schedule(0.01 * learning_rate, peak, warmup, rest, end_value=0.01 * peak)
+    else:
+        schedule = optax.cosine_decay_schedule(peak, decay_steps=rest, alpha=0.01)
+    climb = optax.adam(schedule)
     return warm_restart(explore, climb, first)
 
 
