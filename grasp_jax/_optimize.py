@@ -393,8 +393,9 @@ def optimize(
     elif not isinstance(optimizer, optax.GradientTransformation):
         raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
                         f"got {type(optimizer).__name__}")
+    else:
+        _check_optimizer(optimizer, (fingers, surface.dim))
     dtype = _check_dtype(dtype)
-    _check_optimizer(optimizer, (fingers, surface.dim))
     init_points = None if init is None else _check_init(init, fingers, surface.dim)
     if init_points is None:
         starts = check_int("starts", starts)
