@@ -90,7 +90,7 @@ def main():
     from grasp_jax import objects, sampling
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from optimize_vs_sampling import _resolve
+    from optimize_vs_sampling import _resolve, candidates
 
     from grasp_jax._optimize import distinct_grasps
 
@@ -204,10 +204,8 @@ def main():
         def sample_and_pick(seed):
             p, nr = sampling.sample_grasps(obj, args.refine_samples, n, seed=seed)
             ev = gj.evaluate(p, nr, mu=mu, num_edges=m)
-            rank = np.where(np.asarray(ev.force_closure), 1.0 + np.asarray(ev.quality),
-                            np.minimum(np.asarray(ev.delta), 0.0) - 1.0)
-            top = np.argsort(-rank)[: 4 * B]
-            return p[top][distinct_grasps(p[top], rank[top], 0.01 * float(obj.radius))[:B]]
+            top, rank = candidates(np.asarray(ev.force_closure), np.asarray(ev.quality), np.asarray(ev.delta), 4 * B)
+            return p[top][distinct_grasps(p[top], rank, 0.01 * float(obj.radius))[:B]]
 
         def refine(init, steps):
             return gj.optimize(obj, fingers=n, mu=mu, steps=steps, num_edges=m, init=init)

@@ -171,6 +171,14 @@ class Run:
         )
 
 
+def candidates(fc, q, delta, count: int):
+    """``(indices, rank)`` of the ``count`` best sampled grasps for refining, best first:
+    force-closure grasps by Q above every other grasp, those by signed Q."""
+    rank = np.where(fc, 1.0 + q, np.minimum(delta, 0.0) - 1.0)
+    top = np.argsort(-rank)[:count]
+    return top, rank[top]
+
+
 def _resolve(name: str) -> str:
     """A built-in name, a path, or a file name in ``../shared/data/meshes``."""
     from grasp_jax import objects
@@ -243,11 +251,9 @@ class Row:
             spent += dt
             run.add(p, q, fc, dt)
             if keep:
-                # Force-closure grasps by Q above every other grasp, those by signed Q.
-                rank = np.where(fc, 1.0 + q, np.minimum(delta, 0.0) - 1.0)
-                top = np.argsort(-rank)[: 4 * keep]
+                top, rank = candidates(fc, q, delta, 4 * keep)
                 cand_p.append(p[top])
-                cand_key.append(rank[top])
+                cand_key.append(rank)
             if spent + 0.5 * dt > budget:
                 break
         if not keep:
