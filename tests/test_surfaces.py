@@ -166,6 +166,17 @@ def test_protocol_and_pytree(name):
         assert np.allclose(traced(surface, c), jax.vmap(surface.embed)(c)[0])
 
 
+def test_a_mesh_or_polygon_surface_is_built_once_per_object_and_options():
+    mesh = objects.load("glass")
+    first = surfaces.for_object(mesh)
+    assert surfaces.for_object(mesh) is first
+    assert surfaces.for_object(mesh, normals="flat") is not first
+    assert surfaces.for_object(mesh, normals="flat").normal_kind == "flat"
+    other = objects.load("glass")  # another object with the same mesh: its own surface
+    assert surfaces.for_object(other) is not first
+    np.testing.assert_array_equal(surfaces.for_object(other).vertices, first.vertices)
+
+
 # ------------------------------------------------------------------------- staying on it
 
 
