@@ -9,7 +9,10 @@ no float64 re-solve). Reported per shape:
 * ``disagree``: force-closure verdicts that differ on grasps *outside* the 1e-4 band, i.e. whose
   float64 verdict does not change when both margins (``delta`` and ``torque_margin``) move by
   1e-4 (target 0); ``in band``: how many grasps are within it;
-* ``unconv32`` / ``unconv64``: grasps with an LP not converged.
+* ``unconv32`` / ``unconv64``: grasps with an LP not converged;
+* ``bounded32``: quality LPs unfinished in float32 whose dual bound proved ``delta* < 0`` (status
+  ``BOUNDED``: not in equilibrium, Q = 0), and how many of those float64 calls in equilibrium
+  (``bounded_wrong``, target 0).
 
 Usage::
 
@@ -89,6 +92,9 @@ def compare(name: str, d: int, n: int, m: int, num: int, seed: int) -> dict:
         "disagree_outside_band": int(disagree.sum()),
         "disagree_in_band": int(np.sum(~clear & (fc32 != f["force_closure"]))),
         "unconverged_32": int(np.sum(~e32.converged)),
+        "bounded_32": int(np.sum(np.asarray(e32.quality_status) == gj.Status.BOUNDED)),
+        "bounded_wrong": int(np.sum((np.asarray(e32.quality_status) == gj.Status.BOUNDED)
+                                    & (np.asarray(e64.equilibrium) | (f["delta"] > g["delta"] + 1e-6)))),
         "unconverged_64": int(np.sum(~e64.converged)),
         "worst": {"index": worst, "Q64": float(f["quality"][worst]), "Q32": float(g["quality"][worst]),
                   "status32": int(np.asarray(e32.quality_status)[worst])},
@@ -110,11 +116,11 @@ def main(argv=None) -> int:
         results.append(r)
         rows.append([f"{name} {d}D", n, m if d == 3 else "-", r["num"], r["max_abs_dQ"], r["max_abs_ddelta"],
                      r["grasps_dQ_over_1e-4"], r["disagree_outside_band"], r["in_band"], r["unconverged_32"],
-                     r["unconverged_64"], f"{r['seconds_32']:.1f} / {r['seconds_64']:.1f}"])
+                     r["unconverged_64"], f"{r['bounded_32']} / {r['bounded_wrong']}", f"{r['seconds_32']:.1f} / {r['seconds_64']:.1f}"])
         print(json.dumps(r), flush=True)
     text = _common.table(
         ["shape", "n", "m", "grasps", "max abs dQ", "max abs d delta", "dQ > 1e-4", "disagree outside band",
-         "in band", "unconv f32", "unconv f64", "s f32 / f64"], rows)
+         "in band", "unconv f32", "unconv f64", "bounded f32 / wrong", "s f32 / f64"], rows)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.json").write_text(json.dumps({"band": BAND, "mu": MU, "results": results}, indent=1))

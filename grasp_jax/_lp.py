@@ -38,6 +38,11 @@ class Status(enum.IntEnum):
     #: Only with ``solve(..., best_effort=True)``: unfinished after the budget, and ``x, y`` are
     #: its best iterate (an approximate optimum, good for a gradient step, not for a verdict).
     APPROXIMATE = 3
+    #: Set by the caller of :func:`solve`, never by it: unfinished after the full budget, but the
+    #: dual of its best iterate bounds the optimum by weak duality, which settles the question the
+    #: LP was solved for (grasp_jax: the quality LP's ``delta* < 0``, not in equilibrium). The
+    #: reported value is that bound.
+    BOUNDED = 4
 
     @property
     def message(self) -> str:
@@ -46,6 +51,7 @@ class Status(enum.IntEnum):
             Status.INFEASIBLE: "infeasible (certified by the homogeneous model)",
             Status.NOT_CONVERGED: "not converged in the iteration budget; values are not reliable",
             Status.APPROXIMATE: "not converged in the iteration budget; the best iterate is reported",
+            Status.BOUNDED: "not converged in the iteration budget, but a dual bound settles the verdict",
         }[self]
 
 
@@ -63,7 +69,8 @@ class LPSolution(NamedTuple):
     Attributes:
         x: ``(cols,)`` primal solution (meaningful when ``status == OPTIMAL``).
         y: ``(rows,)`` dual solution; when ``status == INFEASIBLE`` a Farkas certificate scaled so
-            that ``b . y = 1`` and ``A^T y <= 0`` (up to tolerance).
+            that ``b . y = 1`` and ``A^T y <= 0`` (up to tolerance); when ``NOT_CONVERGED`` the
+            dual part of the best iterate (for a weak-duality bound, not for a value).
         value: ``c . x`` (0 unless optimal).
         status: ``int8`` :class:`Status`.
         iterations: iterations actually taken before freezing.
@@ -348,7 +355,7 @@ def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, acce
     x = jnp.where(optimal, x_opt, 0.0)
     by = b @ st.y
     y_inf = st.y / jnp.where(by > 0, by, 1.0)
-    y = jnp.where(optimal, y_opt, jnp.where(inconsistent, y_null, jnp.where(infeasible, y_inf, 0.0)))
+    y = jnp.where(optimal, y_opt, jnp.where(inconsistent, y_null, jnp.where(infeasible, y_inf, st.best_y)))
     value = jnp.where(optimal, c @ x, 0.0)
     residual = jnp.where(inconsistent, 0.0, residual)
     return LPSolution(x, y, value, status, st.iterations, residual)

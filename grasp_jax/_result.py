@@ -27,7 +27,8 @@ class GraspEvaluation:
         torque_span: ``B`` bool. The torques of contacts 2..n about ``c_1`` positively span R^3
             (R in 2D) (Proposition 2(2); eq. 15 / 21 with ``torque_test="paper"``).
         delta: ``B`` float. Signed optimum of the always-feasible quality LP: ``Q`` where positive,
-            and a continuous measure of how far from equilibrium the grasp is where not.
+            and a continuous measure of how far from equilibrium the grasp is where not (where
+            ``quality_status`` is ``BOUNDED``, an upper bound on it, below 0).
         torque_margin: ``B`` float. Margin of the torque test: ``l*`` of the torque min-weight LP
             (exact, 3D), the smaller of the largest positive and negative torques over the grasp size
             (2D), or the weakest eq. (15) slack (``"paper"``, 3D).
@@ -35,7 +36,9 @@ class GraspEvaluation:
             unit wrench ``u = (force, torque about the origin)`` with ``u . w >= 0`` for every
             primitive wrench ``w``: no contact force can push the object along ``-u``, so an external
             wrench along ``+u`` cannot be resisted. Zero for a force-closure grasp.
-        quality_status: ``B`` int8 :class:`grasp_jax.Status` of the quality LP.
+        quality_status: ``B`` int8 :class:`grasp_jax.Status` of the quality LP: ``OPTIMAL``,
+            ``NOT_CONVERGED``, or ``BOUNDED`` (unfinished, but weak duality proves ``delta* < 0``:
+            not in equilibrium, ``Q = 0`` exactly; seen in float32 only).
         torque_status: ``B`` int8 status of the torque LP (``OPTIMAL`` where none was needed).
         iterations: ``B`` int32. Interior-point iterations the quality LP took.
     """

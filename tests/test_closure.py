@@ -416,3 +416,33 @@ def test_wandering_iterates_end_at_the_best_one():
     assert ev.quality_status == gj.Status.OPTIMAL
     assert ev.delta == pytest.approx(-0.9184528415710564, abs=1e-7)  # HiGHS, the normalized LP
     assert reference.quality_highs(p, n, MU, 25) == (0.0, False)
+
+
+@jit
+def _quality_bounds(p, n, noise):
+    from grasp_jax import _closure, _lp
+    from grasp_jax._cones import cone_edges, safe_normalize
+
+    def one(p, n, e):
+        lp = _closure.quality_lp(p, cone_edges(safe_normalize(n), MU, 8, None))
+        (sol,) = _lp.solve(lp, consistent=True)
+        tight, _ = _closure.quality_bound(lp, sol.y)
+        loose, slack = _closure.quality_bound(lp, sol.y + e)
+        return -sol.value - _closure.SHIFT, sol.status, tight, loose, slack
+
+    return jax.vmap(one)(p, n, noise)
+
+
+def test_quality_bound_is_weak_duality():
+    """``quality_bound`` (what turns an unfinished quality LP into ``BOUNDED``): at the optimal
+    dual it is delta* itself; from any other dual vector it is never below delta*."""
+    rng = np.random.default_rng(11)
+    p, n = grasps(sample_sphere, 400, 4, rng)
+    noise = 0.3 * rng.standard_normal((len(p), 7)) * rng.uniform(0, 1, (len(p), 1))
+    delta, status, tight, loose, slack = map(np.asarray, _quality_bounds(p, n, noise))
+    assert np.all(status == gj.Status.OPTIMAL)
+    np.testing.assert_allclose(tight, delta, atol=1e-7)
+    finite = np.isfinite(loose)
+    assert finite.mean() > 0.5 and np.median(slack[finite]) < 1e-12
+    assert np.all(loose[finite] + slack[finite] >= delta[finite] - 1e-9)
+    assert np.any(loose[finite] > delta[finite] + 1e-3)  # the noise did move the bound

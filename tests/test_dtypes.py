@@ -21,7 +21,7 @@ import pytest
 from _grasps import MU, grasps, sample_box, sample_sphere
 
 import grasp_jax as gj
-from grasp_jax import _precision
+from grasp_jax import _precision, reference
 
 _FLOAT32_PROGRAM = textwrap.dedent(
     r"""
@@ -179,7 +179,11 @@ def float32_vs_float64():
         assert e32.quality.dtype == jnp.float32 and e32.delta.dtype == jnp.float32
         delta, tm = np.asarray(e64.delta), np.asarray(e64.torque_margin)
         clear = ((delta > -BAND) & (tm > -BAND)) == ((delta > BAND) & (tm > BAND))
+        bounded = np.asarray(e32.quality_status) == gj.Status.BOUNDED
         out[name] = {
+            # BOUNDED: unfinished, but weak duality proved delta* < 0 (a bound float64 must respect).
+            "bounded_wrong": int(np.sum(bounded & (np.asarray(e64.equilibrium)
+                                                   | (delta > np.asarray(e32.delta, np.float64) + 1e-6)))),
             "disagree": int(np.sum(clear & (np.asarray(e32.force_closure) != np.asarray(e64.force_closure)))),
             "dq": np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64.quality)),
             "unconverged": int(np.sum(~e32.converged)),
@@ -192,8 +196,29 @@ def test_float32_verdicts_and_quality(float32_vs_float64):
     within 1e-4 on 99.5% of the grasps of both shapes."""
     assert float32_vs_float64["box"]["disagree"] == 0
     for name, r in float32_vs_float64.items():
+        assert r["bounded_wrong"] == 0, name
         assert np.mean(r["dq"] <= 1e-4) >= 0.995, name
         assert r["unconverged"] <= 0.02 * len(r["dq"]), name
+
+
+def test_float32_unfinished_quality_lp_bounded_by_its_dual():
+    """A box grasp whose only equilibrium is the first contact alone (delta* = -1, an ill-posed LP):
+    in float32 its quality LP ends unfinished after the full budget, and the dual of its best
+    iterate proves delta* < 0 (``BOUNDED``): not force-closure, Q = 0, converged, with a valid
+    certificate, instead of an unconverged grasp."""
+    p = np.array([[0.13945439457893372, 0.6000000238418579, -0.17477265000343323],
+                  [0.2870014011859894, 0.24085910618305206, 0.4000000059604645],
+                  [-0.9510809183120728, -0.6000000238418579, 0.02870021015405655],
+                  [-0.2120772749185562, -0.6000000238418579, -0.38295602798461914]], np.float32)
+    n = np.array([[0, 1, 0], [0, 0, 1], [0, -1, 0], [0, -1, 0]], np.float32)
+    ev = gj.evaluate(p, n, mu=np.float32(MU))
+    assert ev.quality_status in (gj.Status.BOUNDED, gj.Status.OPTIMAL)  # BOUNDED on this CPU
+    assert ev.converged and not ev.force_closure and ev.quality == 0.0
+    assert ev.delta < -1e-4 and ev.delta >= gj.evaluate(p.astype(np.float64), n.astype(np.float64), mu=MU).delta - 1e-6
+    w = reference.wrenches(p.astype(np.float64), n.astype(np.float64), MU, 8)
+    cert = np.asarray(ev.certificate, np.float64)
+    assert np.linalg.norm(cert) == pytest.approx(1.0, abs=1e-6)
+    assert (w @ cert).min() >= -1e-5 * np.abs(w).max()
 
 
 @pytest.mark.xfail(strict=True, reason="issue 8 item 2 is not met yet: a few float32 quality LPs in "

@@ -80,11 +80,12 @@ def problems():
 
 
 def test_status_enum():
-    assert [int(s) for s in Status] == [0, 1, 2, 3]
+    assert [int(s) for s in Status] == [0, 1, 2, 3, 4]
     assert Status.OPTIMAL.message.startswith("optimal")
     assert "infeasible" in Status.INFEASIBLE.message
     assert "not converged" in Status.NOT_CONVERGED.message
     assert "best iterate" in Status.APPROXIMATE.message
+    assert "dual bound" in Status.BOUNDED.message
 
 
 def test_feasible_matches_highs(problems):
