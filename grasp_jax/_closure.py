@@ -273,15 +273,16 @@ def evaluate_one(
     quality = jnp.where(equilibrium, delta, 0.0)
     force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
 
-    # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges.
-    q_ok = q_ok | bounded
+    # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges, from
+    # the quality LP's dual where it has one (optimal, or a bounding best iterate).
+    has_dual = q_ok | bounded
     q_dual = q_sol.y
     t_q = q_dual[d : d + tau.shape[-1]]
     eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau.shape[-1], points.dtype)]) - _certificate_from_torque(
         points, t_q / _arm_scale(points)
     )
     cert = jnp.where(~torque_span, _certificate_from_torque(points, t_cert), eq_cert)
-    cert = jnp.where(force_closure | ~q_ok, 0.0, safe_normalize(cert))
+    cert = jnp.where(force_closure | ~has_dual, 0.0, safe_normalize(cert))
 
     return GraspEvaluation(
         force_closure=force_closure,
