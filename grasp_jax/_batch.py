@@ -340,7 +340,7 @@ def map_grasps(
     chunk: int | None = None,
     progress: bool = False,
     devices: tuple | None = None,
-    retry: Retry | None = None,
+    retry: Retry | tuple | None = None,
 ):
     """Apply a single-grasp function to every grasp of a batch.
 
@@ -357,8 +357,9 @@ def map_grasps(
         devices: devices to shard each chunk over (default: all local devices of the default
             backend).
         retry: on the concrete path, a second pass with ``retry.shared`` scores again the grasps
-            the first leaves unfinished (see :class:`Retry`). The traced path runs with
-            ``retry.shared`` alone: under the caller's transformations there is no chunk to
+            the first leaves unfinished (see :class:`Retry`); a tuple of them, passes in turn,
+            each on what the passes before it left unfinished. The traced path runs with the
+            last pass's ``shared`` alone: under the caller's transformations there is no chunk to
             compact.
 
     Returns:
@@ -366,8 +367,9 @@ def map_grasps(
     """
     present = [a for a in batched if a is not None]
     traced = is_traced(*present, *jax.tree_util.tree_leaves(shared))
-    if retry is not None and traced:
-        shared, retry = retry.shared, None
+    retries = () if retry is None else (retry,) if isinstance(retry, Retry) else tuple(retry)
+    if retries and traced:
+        shared, retries = retries[-1].shared, ()
     missing = tuple(a is None for a in batched)
     total = int(np.prod(batch_shape, dtype=np.int64))
     call = _with_optional(fn, missing)
@@ -392,24 +394,25 @@ def map_grasps(
     first = _program(call, grasp_specs, shared, _local_size(chunk, ndev, block), block, multi)
     desc = f"scoring {total:,} grasps" if progress else None
     out = _score(first, flat, shared, None, total, desc)
-    if retry is not None:
+    for retry in retries:
         again = np.flatnonzero(np.asarray(retry.unfinished(out)))
-        if again.size:
-            retry_shared = jax.device_get(retry.shared)
-            if _aval_key(retry_shared) != _aval_key(shared):
-                raise TypeError("Retry.shared must have the structure and types of the first pass's shared")
-            second = first
-            if devices[0].platform != "cpu":
-                cap, cap_block = _retry_sizes(devices, chunk, block)
-                second = _program(call, grasp_specs, shared, cap, cap_block, multi)
-            redo = _score(second, flat, retry_shared, again, again.size)
+        if not again.size:
+            break
+        retry_shared = jax.device_get(retry.shared)
+        if _aval_key(retry_shared) != _aval_key(shared):
+            raise TypeError("Retry.shared must have the structure and types of the first pass's shared")
+        second = first
+        if devices[0].platform != "cpu":
+            cap, cap_block = _retry_sizes(devices, chunk, block)
+            second = _program(call, grasp_specs, shared, cap, cap_block, multi)
+        redo = _score(second, flat, retry_shared, again, again.size)
 
-            def put(old, new):
-                old = np.array(old)  # device_get may hand out read-only arrays
-                old[again] = new
-                return old
+        def put(old, new, again=again):
+            old = np.array(old)  # device_get may hand out read-only arrays
+            old[again] = new
+            return old
 
-            out = jax.tree_util.tree_map(put, out, redo)
+        out = jax.tree_util.tree_map(put, out, redo)
     out = jax.tree_util.tree_map(lambda a: np.reshape(a, batch_shape + np.shape(a)[1:]), out)
     # jax.device_put, not jnp.asarray: the latter compiles a small copy program per shape.
     return jax.tree_util.tree_map(jax.device_put, out)

@@ -212,6 +212,7 @@ def evaluate_one(
     torque_test: str = "exact",
     tangents: jax.Array | None = None,
     iterations: int | None = None,
+    restarts: int | None = None,
 ) -> GraspEvaluation:
     """Force-closure verdict, quality Q and certificate of one grasp.
 
@@ -223,6 +224,7 @@ def evaluate_one(
         torque_test: ``"exact"`` (default) or ``"paper"`` (eq. 15 / 21).
         tangents: optional ``(n, 3)`` first tangent of each 3D contact frame.
         iterations: interior-point iterations (default from the problem size).
+        restarts: float32 starting points an unfinished LP runs from (``_lp.solve``; default all).
     """
     tol = tolerances(points.dtype)
     d = points.shape[-1]
@@ -236,8 +238,8 @@ def evaluate_one(
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
         # stops then. The quality LP is feasible by construction.
-        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True)
-        (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations)
+        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
+        (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
@@ -245,7 +247,7 @@ def evaluate_one(
         t_status = jnp.where(full, t_sol.status, Status.OPTIMAL).astype(jnp.int8)
         t_margin = jnp.where(full, t_margin, 0.0)
     else:
-        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True)
+        (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         if d == 2:
             torque_span, t_margin, t_cert = _exact_torque_2d(tau)
             if torque_test == "paper":

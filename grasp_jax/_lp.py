@@ -362,7 +362,7 @@ def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, acce
 
 
 def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool = False,
-          best_effort: bool = False) -> tuple[LPSolution, ...]:
+          best_effort: bool = False, restarts: int | jax.Array | None = None) -> tuple[LPSolution, ...]:
     """Solve one or more independent LPs in a single fused iteration loop.
 
     Each iteration advances every LP by one step; the loop ends when all are done (under
@@ -383,6 +383,9 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
             status ``APPROXIMATE`` instead of ``NOT_CONVERGED`` and zeros (no restarts, no
             acceptance within 100x): for a gradient step that cannot wait for stragglers, as in
             ``gj.optimize``. Never for a verdict.
+        restarts: with at least the default budget, how many of the starting points of
+            ``tolerances(dtype).restarts`` (float32 only) a problem still unfinished runs from in
+            turn (default: all); may be traced, as ``iterations``.
 
     Returns:
         One :class:`LPSolution` per LP, in order.
@@ -423,19 +426,29 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
     sols = tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
     # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
     # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). Only the
-    # problems still unfinished run again; the others stay frozen.
-    for factor in tolerances(lps[0].A.dtype).restarts if accept_near is not False else ():
-        again = tuple((sol.status == Status.NOT_CONVERGED) & accept_near for sol in sols)
-        states = tuple(_init(lp, factor)._replace(done=~a) for lp, a in zip(lps, again))
-        _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
-        sols = tuple(
-            jax.tree_util.tree_map(
-                lambda old, new, a=a: jnp.where(a, new, old),
-                sol,
-                _finish(lp, st, *check, accept_near)._replace(iterations=st.iterations + sol.iterations),
+    # problems still unfinished run again, from each starting point in turn; the others stay
+    # frozen. One loop over the starting points, so that the step is compiled once for all.
+    factors = tolerances(lps[0].A.dtype).restarts if accept_near is not False else ()
+    if restarts is not None and not isinstance(restarts, jax.Array):
+        factors = factors[: max(0, int(restarts))]
+    if factors:
+
+        def restart(k, sols):
+            factor = jnp.asarray(factors, lps[0].A.dtype)[k]
+            again = tuple((sol.status == Status.NOT_CONVERGED) & accept_near for sol in sols)
+            states = tuple(_init(lp, factor)._replace(done=~a) for lp, a in zip(lps, again))
+            _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
+            return tuple(
+                jax.tree_util.tree_map(
+                    lambda old, new, a=a: jnp.where(a, new, old),
+                    sol,
+                    _finish(lp, st, *check, accept_near)._replace(iterations=st.iterations + sol.iterations),
+                )
+                for lp, st, check, sol, a in zip(lps, states, checks, sols, again)
             )
-            for lp, st, check, sol, a in zip(lps, states, checks, sols, again)
-        )
+
+        count = len(factors) if not isinstance(restarts, jax.Array) else jnp.clip(restarts, 0, len(factors))
+        sols = jax.lax.fori_loop(0, count, restart, sols)
     return sols
 
 

@@ -114,7 +114,8 @@ def test_float32_inputs(batch):
 def _full_budget(p, n, chunk, progress=False):
     """``evaluate``'s single-grasp function with the full budget, mapped in chunks of ``chunk``."""
     fn = api._bind(api._evaluate_single, num_edges=8, torque_test="exact")
-    shared = (np.asarray(MU), np.int32(api.default_iterations(api._lp_columns(N, D, 8))))
+    shared = (np.asarray(MU), np.int32(api.default_iterations(api._lp_columns(N, D, 8))),
+              np.int32(len(api.tolerances(np.float64).restarts)))
     return _batch.map_grasps(fn, (p, n, None), shared, (len(p),), chunk=chunk, progress=progress)
 
 
@@ -200,6 +201,25 @@ def test_retry_gathers_in_several_rounds():
     with pytest.raises(TypeError, match="structure and types"):
         _batch.map_grasps(fn, (x,), (np.float64(2.0), np.bool_(False)), (5000,), chunk=4096,
                           retry=_batch.Retry((np.float64(2.0), np.float64(1.0)), lambda out: out < 0))
+
+
+def test_retry_passes_in_turn():
+    """A tuple of retries: each pass scores again only what the passes before it left unfinished
+    (evaluate's float32 third pass), and the traced path runs the last pass's ``shared``."""
+    calls = []
+
+    def fn(x, shared):
+        (level,) = shared
+        return jnp.where(x[0] > level, -1.0, x[0])  # "unfinished" above the pass's level
+
+    x = np.random.default_rng(1).uniform(size=(3000, 1))
+    unfinished = lambda out: (calls.append(int(np.sum(np.asarray(out) < 0))), np.asarray(out) < 0)[1]
+    passes = (_batch.Retry((np.float64(0.9),), unfinished), _batch.Retry((np.float64(2.0),), unfinished))
+    out = _batch.map_grasps(fn, (x,), (np.float64(0.5),), (3000,), retry=passes)
+    np.testing.assert_array_equal(np.asarray(out), x[:, 0])
+    assert calls == [int(np.sum(x > 0.5)), int(np.sum(x > 0.9))]  # the second pass saw only x > 0.9
+    traced = jax.jit(lambda x: _batch.map_grasps(fn, (x,), (np.float64(0.5),), (3000,), retry=passes))(x)
+    np.testing.assert_array_equal(np.asarray(traced), x[:, 0])
 
 
 def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
