@@ -144,8 +144,14 @@ def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, to
     return evaluate(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test, tangents=tangents).force_closure
 
 
-def _quality_single(points, normals, tangents, mu, *, num_edges, signed, iterations):
-    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations)
+def _quality_single(points, normals, tangents, shared, *, num_edges, signed, iterations):
+    mu, restarts = shared
+    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts,
+                                with_status=True)
+
+
+def _quality_unfinished(out) -> np.ndarray:
+    return np.asarray(out[1]) == Status.NOT_CONVERGED
 
 
 def quality(
@@ -176,7 +182,14 @@ def quality(
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
     fn = _bind(_quality_single, num_edges=num_edges, signed=signed, iterations=iterations)
     with scope:
-        return map_grasps(fn, (points, normals, tangents), jnp.asarray(mu, points.dtype), batch)
+        mu = jnp.asarray(mu, points.dtype)
+        every = np.int32(len(tolerances(points.dtype).restarts))
+        # float32: the few LPs that stall after RETRY_RESTARTS starting points get a pass of their
+        # own from all of them (as in evaluate).
+        retry = Retry((mu, every), _quality_unfinished)
+        shared = (mu, np.int32(min(RETRY_RESTARTS, every)))
+        value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
+        return value
 
 
 def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations):

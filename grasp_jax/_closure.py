@@ -300,19 +300,20 @@ def evaluate_one(
     )
 
 
-def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None):
+def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None,
+                restarts=None, with_status: bool = False):
     """Q of one grasp (``delta*`` of the quality LP, clipped at 0 unless ``signed``), with envelope
-    theorem derivatives in ``points`` and ``normals``."""
+    theorem derivatives in ``points`` and ``normals``; ``(Q, LP status)`` with ``with_status``.
+    ``restarts``: see :func:`evaluate_one`."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
     lp = quality_lp(points, edges)
-    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
     ok = sol.status == Status.OPTIMAL
     delta = -optimal_value(lp, sol) - SHIFT
     tol = tolerances(points.dtype)
-    if signed:
-        return jnp.where(ok, delta, 0.0)
-    return jnp.where(ok & (delta > tol.margin), delta, 0.0)
+    value = jnp.where(ok, delta, 0.0) if signed else jnp.where(ok & (delta > tol.margin), delta, 0.0)
+    return (value, sol.status) if with_status else value
 
 
 def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
