@@ -114,8 +114,9 @@ def evaluate(
         every = np.int32(len(tolerances(points.dtype).restarts))
         if iterations is None:
             full = np.int32(default_iterations(columns))
-            retry = (Retry((mu, full, np.int32(min(RETRY_RESTARTS, every))), _unfinished),
-                     Retry((mu, full, every), _unfinished))
+            retry = (Retry((mu, full, np.int32(min(RETRY_RESTARTS, every))), _unfinished),)
+            if every > RETRY_RESTARTS:  # float32 only
+                retry += (Retry((mu, full, every), _unfinished),)
         shared = (mu, budget if is_traced(budget) else np.int32(budget), every)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
     _warn_unconverged(result.quality_status, "quality LPs")
@@ -186,7 +187,7 @@ def quality(
         every = np.int32(len(tolerances(points.dtype).restarts))
         # float32: the few LPs that stall after RETRY_RESTARTS starting points get a pass of their
         # own from all of them (as in evaluate).
-        retry = Retry((mu, every), _quality_unfinished)
+        retry = Retry((mu, every), _quality_unfinished) if every > RETRY_RESTARTS else None
         shared = (mu, np.int32(min(RETRY_RESTARTS, every)))
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
         return value
