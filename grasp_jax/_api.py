@@ -60,6 +60,13 @@ def _warn_unconverged(status, what: str):
 RETRY_RESTARTS = 2
 
 
+def _restart_points(dtype) -> tuple[np.int32, np.int32]:
+    """``(points of the retry pass, all points)`` an unfinished LP restarts from (float32: 2, 6;
+    float64, which needs none: 0, 0). A last pass from all of them is needed where they differ."""
+    every = len(tolerances(dtype).restarts)
+    return np.int32(min(RETRY_RESTARTS, every)), np.int32(every)
+
+
 def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test):
     mu, iterations, restarts = shared  # traced: every budget runs one compiled program
     return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts)
@@ -111,11 +118,11 @@ def evaluate(
         budget = iterations
     with scope:
         mu = jnp.asarray(mu, points.dtype)
-        every = np.int32(len(tolerances(points.dtype).restarts))
+        few, every = _restart_points(points.dtype)
         if iterations is None:
             full = np.int32(default_iterations(columns))
-            retry = (Retry((mu, full, np.int32(min(RETRY_RESTARTS, every))), _unfinished),)
-            if every > RETRY_RESTARTS:  # float32 only
+            retry = (Retry((mu, full, few), _unfinished),)
+            if every > few:
                 retry += (Retry((mu, full, every), _unfinished),)
         shared = (mu, budget if is_traced(budget) else np.int32(budget), every)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
@@ -147,8 +154,7 @@ def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, to
 
 def _quality_single(points, normals, tangents, shared, *, num_edges, signed, iterations):
     mu, restarts = shared
-    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts,
-                                with_status=True)
+    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts)
 
 
 def _quality_unfinished(out) -> np.ndarray:
@@ -184,11 +190,11 @@ def quality(
     fn = _bind(_quality_single, num_edges=num_edges, signed=signed, iterations=iterations)
     with scope:
         mu = jnp.asarray(mu, points.dtype)
-        every = np.int32(len(tolerances(points.dtype).restarts))
-        # float32: the few LPs that stall after RETRY_RESTARTS starting points get a pass of their
-        # own from all of them (as in evaluate).
-        retry = Retry((mu, every), _quality_unfinished) if every > RETRY_RESTARTS else None
-        shared = (mu, np.int32(min(RETRY_RESTARTS, every)))
+        few, every = _restart_points(points.dtype)
+        # float32: the few LPs that stall after `few` starting points get a pass of their own
+        # from all of them (as in evaluate).
+        retry = Retry((mu, every), _quality_unfinished) if every > few else None
+        shared = (mu, few)
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
         return value
 

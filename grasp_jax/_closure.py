@@ -301,10 +301,10 @@ def evaluate_one(
 
 
 def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None,
-                restarts=None, with_status: bool = False):
-    """Q of one grasp (``delta*`` of the quality LP, clipped at 0 unless ``signed``), with envelope
-    theorem derivatives in ``points`` and ``normals``; ``(Q, LP status)`` with ``with_status``.
-    ``restarts``: see :func:`evaluate_one`."""
+                restarts=None):
+    """``(Q, LP status)`` of one grasp: Q is ``delta*`` of the quality LP, clipped at 0 unless
+    ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``restarts``: see
+    :func:`evaluate_one`."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
     lp = quality_lp(points, edges)
@@ -313,7 +313,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     delta = -optimal_value(lp, sol) - SHIFT
     tol = tolerances(points.dtype)
     value = jnp.where(ok, delta, 0.0) if signed else jnp.where(ok & (delta > tol.margin), delta, 0.0)
-    return (value, sol.status) if with_status else value
+    return value, sol.status
 
 
 def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
