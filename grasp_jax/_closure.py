@@ -22,6 +22,7 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
+from ._crossover import polish
 from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
 from ._result import GraspEvaluation
 from ._wrench import cross, primitive_wrenches
@@ -204,6 +205,38 @@ def _certificate_from_torque(points, t):
     return jnp.concatenate([force, t])
 
 
+def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(delta, status, dual)`` from a solve of :func:`quality_lp`: the value with envelope
+    derivatives, its status, and the dual vector behind it (for the certificate).
+
+    float32: the solution is first moved to a certified optimal vertex (``_crossover``). A solve
+    that ends without a value (unfinished after the full budget) or with a value no vertex
+    confirms (float32) still settles the verdict when the dual of the interior-point iterate or of
+    the crossover's last basis bounds ``delta* < 0`` by weak duality (:func:`quality_bound`): status
+    ``BOUNDED``, ``delta`` is that bound, ``Q = 0`` exactly. (Seen in float32: an ill-posed LP
+    accepted at ``delta = 4e-4`` whose ``delta*`` is -1.)
+    """
+    tol = tolerances(q_lp.A.dtype)
+    q_sol, certified, y_vertex = polish(q_lp, q_sol, tol.crossover)
+    q_ok = q_sol.status == Status.OPTIMAL
+    delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
+    y_ipm = jax.lax.stop_gradient(q_sol.y)
+    bound, slack = quality_bound(q_lp, y_ipm)
+    y_bound = y_ipm
+    if tol.crossover:
+        bound_v, slack_v = quality_bound(q_lp, jax.lax.stop_gradient(y_vertex))
+        tighter = bound_v + slack_v < bound + slack
+        bound, slack = jnp.where(tighter, bound_v, bound), jnp.where(tighter, slack_v, slack)
+        y_bound = jnp.where(tighter, y_vertex, y_ipm)
+    full = True if iterations is None else iterations >= default_iterations(q_lp.A.shape[1])
+    unfinished = full & (q_sol.status == Status.NOT_CONVERGED)
+    suspect = (q_ok & ~certified & (delta > -tol.margin)) if tol.crossover else False
+    bounded = (unfinished | suspect) & (bound + slack < -tol.margin)
+    delta = jnp.where(bounded, jax.lax.stop_gradient(bound), delta)
+    status = jnp.where(bounded, Status.BOUNDED, q_sol.status).astype(jnp.int8)
+    return delta, status, jnp.where(bounded, y_bound, q_sol.y)
+
+
 def evaluate_one(
     points: jax.Array,
     normals: jax.Array,
@@ -240,6 +273,7 @@ def evaluate_one(
         # stops then. The quality LP is feasible by construction.
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
+        t_sol, _, _ = polish(t_lp, t_sol, tol.crossover)
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
@@ -262,15 +296,11 @@ def evaluate_one(
             t_cert = jnp.sign(jnp.sum(tau, axis=0)[axis]) * jax.nn.one_hot(axis, 3, dtype=tau.dtype)
         t_status = jnp.asarray(Status.OPTIMAL, jnp.int8)
 
-    q_ok = q_sol.status == Status.OPTIMAL
-    delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
     # Unfinished after the full budget (in float32 about 1 quality LP in 1,000 random grasps): the
     # dual of its best iterate may still prove delta* < 0, i.e. no equilibrium, Q = 0 exactly.
-    bound, slack = quality_bound(q_lp, jax.lax.stop_gradient(q_sol.y))
-    full = True if iterations is None else iterations >= default_iterations(q_lp.A.shape[1])
-    bounded = full & (q_sol.status == Status.NOT_CONVERGED) & (bound + slack < -tol.margin)
-    delta = jnp.where(bounded, jax.lax.stop_gradient(bound), delta)
-    q_status = jnp.where(bounded, Status.BOUNDED, q_sol.status).astype(jnp.int8)
+    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations)
+    q_ok = q_status == Status.OPTIMAL
+    bounded = q_status == Status.BOUNDED
     equilibrium = q_ok & (delta > tol.margin)
     quality = jnp.where(equilibrium, delta, 0.0)
     force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
@@ -278,7 +308,6 @@ def evaluate_one(
     # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges, from
     # the quality LP's dual where it has one (optimal, or a bounding best iterate).
     has_dual = q_ok | bounded
-    q_dual = q_sol.y
     t_q = q_dual[d : d + tau.shape[-1]]
     eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau.shape[-1], points.dtype)]) - _certificate_from_torque(
         points, t_q / _arm_scale(points)
@@ -309,11 +338,14 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     edges = cone_edges(normals, mu, num_edges, tangents)
     lp = quality_lp(points, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
-    ok = sol.status == Status.OPTIMAL
-    delta = -optimal_value(lp, sol) - SHIFT
+    delta, status, _ = _quality_value(lp, sol, iterations)
+    ok = status == Status.OPTIMAL
     tol = tolerances(points.dtype)
-    value = jnp.where(ok, delta, 0.0) if signed else jnp.where(ok & (delta > tol.margin), delta, 0.0)
-    return value, sol.status
+    if signed:
+        value = jnp.where(ok | (status == Status.BOUNDED), delta, 0.0)
+    else:
+        value = jnp.where(ok & (delta > tol.margin), delta, 0.0)
+    return value, status
 
 
 def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
@@ -337,6 +369,8 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     """
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
+    if not best_effort:
+        sol, _, _ = polish(lp, sol, tolerances(vectors.dtype).crossover)
     rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
     full, _ = rank(jax.lax.stop_gradient(vectors))
     K = vectors.shape[0]

@@ -53,6 +53,8 @@ class Tolerances:
         step: fraction of the step to the boundary the interior-point method takes.
         restarts: with the full budget, problems left unfinished start again from
             ``x = s = factor`` for each factor in turn (``_lp.solve``).
+        crossover: most simplex pivots from the interior-point solution to a certified optimal
+            vertex (``_crossover``); 0: none.
     """
 
     lp: float
@@ -64,6 +66,7 @@ class Tolerances:
     near: float = 100.0
     step: float = 0.999
     restarts: tuple = ()
+    crossover: int = 0
 
 
 _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
@@ -76,7 +79,7 @@ _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
 #: six; one compiled loop serves them all). A margin must exceed 2e-5, so that the verdicts of grasps
 #: whose margins are clear of 1e-4 can match float64's.
 _F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1,
-                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1))
+                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=16)
 
 
 def tolerances(dtype) -> Tolerances:

@@ -67,7 +67,8 @@ class LPSolution(NamedTuple):
     """Result of :func:`solve` for one LP.
 
     Attributes:
-        x: ``(cols,)`` primal solution (meaningful when ``status == OPTIMAL``).
+        x: ``(cols,)`` primal solution (meaningful when ``status == OPTIMAL``; when
+            ``NOT_CONVERGED``, the best iterate's).
         y: ``(rows,)`` dual solution; when ``status == INFEASIBLE`` a Farkas certificate scaled so
             that ``b . y = 1`` and ``A^T y <= 0`` (up to tolerance); when ``NOT_CONVERGED`` the
             dual part of the best iterate (for a weak-duality bound, not for a value).
@@ -352,7 +353,8 @@ def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, acce
     status = jnp.where(
         optimal, Status.OPTIMAL, jnp.where(infeasible, Status.INFEASIBLE, Status.NOT_CONVERGED)
     ).astype(jnp.int8)
-    x = jnp.where(optimal, x_opt, 0.0)
+    # Unfinished: the best iterate, a starting guess for the crossover (``_crossover``).
+    x = jnp.where(optimal, x_opt, jnp.where(infeasible, 0.0, st.best_x))
     by = b @ st.y
     y_inf = st.y / jnp.where(by > 0, by, 1.0)
     y = jnp.where(optimal, y_opt, jnp.where(inconsistent, y_null, jnp.where(infeasible, y_inf, st.best_y)))
