@@ -205,6 +205,18 @@ def _certificate_from_torque(points, t):
     return jnp.concatenate([force, t])
 
 
+def _full_budget(lp: LP, iterations) -> jax.Array | bool:
+    """Whether ``iterations`` (``None``: the default) is at least the full budget of ``lp``."""
+    return True if iterations is None else iterations >= default_iterations(lp.A.shape[1])
+
+
+def _pivots(tol, full) -> jax.Array | int:
+    """Crossover pivots after the full or a short budget (``full`` may be traced)."""
+    if full is True or tol.crossover == tol.crossover_short:
+        return tol.crossover
+    return jnp.where(full, tol.crossover, tol.crossover_short)
+
+
 def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(delta, status, dual)`` from a solve of :func:`quality_lp`: the value with envelope
     derivatives, its status, and the dual vector behind it (for the certificate).
@@ -217,7 +229,8 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, 
     accepted at ``delta = 4e-4`` whose ``delta*`` is -1.)
     """
     tol = tolerances(q_lp.A.dtype)
-    q_sol, certified, y_vertex = polish(q_lp, q_sol, tol.crossover)
+    full = _full_budget(q_lp, iterations)
+    q_sol, certified, y_vertex = polish(q_lp, q_sol, _pivots(tol, full))
     q_ok = q_sol.status == Status.OPTIMAL
     delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
     y_ipm = jax.lax.stop_gradient(q_sol.y)
@@ -228,12 +241,14 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, 
         tighter = bound_v + slack_v < bound + slack
         bound, slack = jnp.where(tighter, bound_v, bound), jnp.where(tighter, slack_v, slack)
         y_bound = jnp.where(tighter, y_vertex, y_ipm)
-    full = True if iterations is None else iterations >= default_iterations(q_lp.A.shape[1])
     unfinished = full & (q_sol.status == Status.NOT_CONVERGED)
     suspect = (q_ok & ~certified & (delta > -tol.margin)) if tol.crossover else False
     bounded = (unfinished | suspect) & (bound + slack < -tol.margin)
     delta = jnp.where(bounded, jax.lax.stop_gradient(bound), delta)
-    status = jnp.where(bounded, Status.BOUNDED, q_sol.status).astype(jnp.int8)
+    status = jnp.where(bounded, Status.BOUNDED, q_sol.status)
+    # After a short budget, a value that no vertex certifies waits for the full budget.
+    status = jnp.where(suspect & ~bounded & ~full, Status.NOT_CONVERGED, status).astype(jnp.int8)
+    delta = jnp.where(status == Status.NOT_CONVERGED, 0.0, delta)
     return delta, status, jnp.where(bounded, y_bound, q_sol.y)
 
 
@@ -273,12 +288,19 @@ def evaluate_one(
         # stops then. The quality LP is feasible by construction.
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
-        t_sol, _, _ = polish(t_lp, t_sol, tol.crossover)
+        t_full = _full_budget(t_lp, iterations)
+        t_sol, _, _ = polish(t_lp, t_sol, _pivots(tol, t_full))
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
+        # Unfinished after the full budget: the dual of the best iterate may still prove that the
+        # torques do not span, by a direction u with u . tau >= 0 for every torque (then l* <= 0).
+        u = safe_normalize(_min_weight_certificate(tau, t_sol))
+        u_slack = 16.0 * jnp.finfo(tau.dtype).eps * jnp.max(jnp.abs(tau))
+        t_bounded = t_full & (t_sol.status == Status.NOT_CONVERGED) & (jnp.min(tau @ u) >= -u_slack)
+        t_margin = jnp.where(t_bounded, 0.0, t_margin)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
-        t_cert = jnp.where(full & (t_sol.status != Status.NOT_CONVERGED), _min_weight_certificate(tau, t_sol), null)
-        t_status = jnp.where(full, t_sol.status, Status.OPTIMAL).astype(jnp.int8)
+        t_cert = jnp.where(full & ((t_sol.status != Status.NOT_CONVERGED) | t_bounded), _min_weight_certificate(tau, t_sol), null)
+        t_status = jnp.where(full, jnp.where(t_bounded, Status.BOUNDED, t_sol.status), Status.OPTIMAL).astype(jnp.int8)
         t_margin = jnp.where(full, t_margin, 0.0)
     else:
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
@@ -370,7 +392,7 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
     if not best_effort:
-        sol, _, _ = polish(lp, sol, tolerances(vectors.dtype).crossover)
+        sol, _, _ = polish(lp, sol, _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations)))
     rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
     full, _ = rank(jax.lax.stop_gradient(vectors))
     K = vectors.shape[0]

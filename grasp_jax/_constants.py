@@ -54,7 +54,11 @@ class Tolerances:
         restarts: with the full budget, problems left unfinished start again from
             ``x = s = factor`` for each factor in turn (``_lp.solve``).
         crossover: most simplex pivots from the interior-point solution to a certified optimal
-            vertex (``_crossover``); 0: none.
+            vertex (``_crossover``), with the full budget; 0: none.
+        crossover_short: the same after a short budget (the first pass of ``_batch.Retry``), where
+            a quality LP whose value no vertex certifies is left for the retry pass. Every problem
+            of a vmapped block waits for its slowest: 32 pivots in the first pass cost 44% of the
+            float32 throughput (box, 4 fingers, 8 edges).
     """
 
     lp: float
@@ -67,6 +71,7 @@ class Tolerances:
     step: float = 0.999
     restarts: tuple = ()
     crossover: int = 0
+    crossover_short: int = 0
 
 
 _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
@@ -79,7 +84,7 @@ _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
 #: six; one compiled loop serves them all). A margin must exceed 2e-5, so that the verdicts of grasps
 #: whose margins are clear of 1e-4 can match float64's.
 _F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1,
-                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=16)
+                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=32, crossover_short=12)
 
 
 def tolerances(dtype) -> Tolerances:

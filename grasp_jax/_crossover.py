@@ -16,20 +16,29 @@ carries its own proof of optimality, ``x_B >= 0`` and reduced costs ``c - A^T y 
 2. **Make it feasible.** If ``x_B = B^{-1} b`` has negative entries, the most negative basic column
    is replaced by one artificial column ``b - B v`` (``v = max(x_B, 0)`` without that entry), which
    makes the basis feasible.
-3. **Pivot.** Primal simplex pivots (Dantzig's rule, Harris's ratio test): phase one (minimize
-   the artificial weight) while the artificial column carries weight, then phase two (the LP's
-   costs) until every reduced cost is ``>= -tol``; a dual simplex pivot where the basis is then
-   dual but not primal feasible. (A big-M cost was tried first: with ``M = 100`` it was too small on barely
-   feasible grasps and already spoiled float32 reduced costs by ``M`` times the roundoff.)
+3. **Pivot.** Simplex pivots with Harris's two-pass ratio test: phase one (minimize the
+   artificial weight) while the artificial column carries weight; then the artificial column, at
+   weight ~0, is driven out by a degenerate pivot; then phase two (the LP's costs) until every
+   reduced cost is ``>= -tol``, with Dantzig's rule, Bland's after a degenerate pivot (the
+   vertices of ``delta* = -1`` are degenerate, and Dantzig's rule cycled there); and a dual simplex
+   pivot where the basis is dual but not primal feasible. The basis inverse is updated in product
+   form. (A big-M cost was tried first: with ``M = 100`` it was too small on barely feasible
+   grasps and already spoiled float32 reduced costs by ``M`` times the roundoff.)
 4. **Certify** with a fresh inverse: ``x_B >= -tol``, reduced costs ``>= -tol``, no artificial
-   weight, and the basis inverse well conditioned.
+   weight, and the basis inverse well conditioned. An uncertified result is reported as such,
+   never used.
 
-On the 59 grasps of 20,000 (sphere, 4 fingers, 25 edges) whose float32 Q missed float64's by more
-than 1e-4, 57 were certified, all within 3.1e-7 of float64, and 10 pivots did what 40 did.
+Measured (``experiments/float32_accuracy.py``, 20,000 grasps per shape, the eight shapes of the
+suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from up to 0.3% to none, the
+largest ``|dQ|`` from 0.41 to below 3e-5 (sphere, 4 fingers, 25 edges: 312 grasps in 100,000
+before). float32 ``evaluate`` runs 6% slower on a box (4 fingers, 8 edges; 32 pivots after the full
+budget, 12 after the short first pass, ``_constants.Tolerances.crossover``) and twice as fast on
+the sphere with 25 edges (fewer grasps left for the retry pass).
 
-Everything is dense arithmetic on ``r <= 7`` rows, unrolled, with one-hot products instead of
-gathers and scatters: under ``jax.vmap`` every problem of a batch pivots in lock step, and no
-LAPACK call is made (see ``_batch``: LAPACK kernels and several CPU devices do not mix).
+Everything is dense arithmetic on ``r <= 7`` rows, with one-hot products instead of gathers and
+scatters where they are hot, and rolled loops (the compile time of a chunk program matters as much
+as its run time): under ``jax.vmap`` every problem of a batch pivots in lock step, and no LAPACK
+call is made (see ``_batch``: LAPACK kernels and several CPU devices do not mix).
 """
 
 from __future__ import annotations
@@ -56,26 +65,45 @@ CONDITION = 1e-4
 
 
 def _inverse(B: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Inverse of a small square ``B`` by Gauss-Jordan elimination with partial pivoting, unrolled.
+    """Inverse of a small square ``B`` by Gauss-Jordan elimination with partial pivoting.
 
     Row swaps are rank-one updates with one-hot vectors, so that under ``vmap`` the elimination is
-    plain elementwise arithmetic. Returns ``(inverse, smallest |pivot|)``.
+    plain elementwise arithmetic; the loop over columns is rolled (``fori_loop``), which keeps the
+    compiled program small (unrolled, the crossover doubled the compile time of ``evaluate``).
+    Returns ``(inverse, smallest |pivot|)``.
     """
     r = B.shape[0]
     eye = jnp.eye(r, dtype=B.dtype)
-    M = jnp.concatenate([B, eye], axis=1)
     rows = jnp.arange(r)
-    smallest = jnp.full((), jnp.inf, B.dtype)
-    for k in range(r):
-        col = jnp.where(rows >= k, jnp.abs(M[:, k]), -1.0)
+
+    def eliminate(k, carry):
+        M, smallest = carry
+        e_k = (rows == k).astype(B.dtype)
+        col = jnp.where(rows >= k, jnp.abs(M[:, :r] @ e_k), -1.0)
         e_p = jax.nn.one_hot(jnp.argmax(col), r, dtype=B.dtype)
-        row_p = e_p @ M
-        M = M + jnp.outer(eye[k] - e_p, row_p - M[k])  # swap rows k and p
-        pivot = M[k, k]
-        smallest = jnp.minimum(smallest, jnp.abs(pivot))
-        pivot_row = M[k] / jnp.where(pivot == 0, 1.0, pivot)
-        M = M - jnp.outer(M[:, k] - eye[k], pivot_row)
+        M = M + jnp.outer(e_k - e_p, e_p @ M - e_k @ M)  # swap rows k and p
+        row_k = e_k @ M
+        pivot = row_k[:r] @ e_k
+        pivot_row = row_k / jnp.where(pivot == 0, 1.0, pivot)
+        M = M - jnp.outer(M[:, :r] @ e_k - e_k, pivot_row)
+        return M, jnp.minimum(smallest, jnp.abs(pivot))
+
+    M, smallest = jax.lax.fori_loop(
+        0, r, eliminate, (jnp.concatenate([B, eye], axis=1), jnp.full((), jnp.inf, B.dtype))
+    )
     return M[:, r:], smallest
+
+
+def _replace_column(Binv: jax.Array, column: jax.Array, row, apply) -> jax.Array:
+    """The inverse of the basis whose column ``row`` is replaced by ``column`` (product form:
+    row ``row`` of the new inverse is the old one over the pivot ``(Binv @ column)[row]``, the
+    others lose their multiple of it). Unchanged where ``apply`` is false."""
+    rows = jnp.arange(Binv.shape[0])
+    pivot_col = Binv @ column
+    pivot = jnp.sum(jnp.where(rows == row, pivot_col, 0.0))
+    new_row = jnp.sum(jnp.where((rows == row)[:, None], Binv, 0.0), axis=0) / jnp.where(apply, pivot, 1.0)
+    new = jnp.where((rows == row)[:, None], new_row, Binv - jnp.outer(pivot_col, new_row))
+    return jnp.where(apply, new, Binv)
 
 
 def _rounding(A: jax.Array, c: jax.Array, y: jax.Array) -> jax.Array:
@@ -91,11 +119,9 @@ def _initial_basis(A: jax.Array, score: jax.Array) -> tuple[jax.Array, jax.Array
     """
     r, N = A.shape
     norms = jnp.sqrt(jnp.sum(A * A, axis=0))
-    R = A
-    chosen = jnp.zeros(N, bool)
-    idx = []
-    ok = jnp.ones((), bool)
-    for _ in range(r):
+
+    def choose(k, carry):
+        R, chosen, idx, ok = carry
         rn = jnp.sqrt(jnp.sum(R * R, axis=0))
         eligible = (rn > INDEPENDENCE * norms) & ~chosen
         j = jnp.argmin(jnp.where(eligible, score, jnp.inf))
@@ -103,9 +129,11 @@ def _initial_basis(A: jax.Array, score: jax.Array) -> tuple[jax.Array, jax.Array
         e_j = jax.nn.one_hot(j, N, dtype=A.dtype)
         q = (R @ e_j) / jnp.where(ok, rn[j], 1.0)
         R = R - jnp.outer(q, q @ R)
-        chosen = chosen | (e_j > 0)
-        idx.append(j)
-    return jnp.stack(idx).astype(jnp.int32), ok
+        return R, chosen | (e_j > 0), jnp.where(jnp.arange(r) == k, j.astype(jnp.int32), idx), ok
+
+    init = (A, jnp.zeros(N, bool), jnp.zeros(r, jnp.int32), jnp.ones((), bool))
+    _, _, idx, ok = jax.lax.fori_loop(0, r, choose, init)
+    return idx.astype(jnp.int32), ok
 
 
 def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Array, pivots: int):
@@ -115,7 +143,7 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         A, b, c: one LP in standard form, ``A: (r, N)`` of full row rank, ``r`` small.
         x: ``(N,)`` approximate primal solution (zeros if unknown: then ``y`` alone guides).
         y: ``(r,)`` approximate dual solution.
-        pivots: most primal simplex pivots.
+        pivots: most simplex pivots (a Python or a traced integer).
 
     Returns:
         ``(x, y, certified)``: the vertex ``(N,)`` (negative rounding clipped to 0), its dual
@@ -140,32 +168,43 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
     phase_one_costs = jnp.zeros(N + 1, dt).at[N].set(1.0)
     idx = jnp.where(infeasible & (jnp.arange(r) == worst), N, idx).astype(jnp.int32)
     rows = jnp.arange(r)
+    abs_A = jnp.abs(A)
+    Binv = _replace_column(Binv, art, worst, infeasible)
 
     # Step 3: pivots.
     def cond(state):
-        k, _, done = state
+        k, _, _, done, _ = state
         return (k < pivots) & ~done
 
     def body(state):
-        # A fresh inverse each pivot: product-form updates drift by 1e-5 in float32 after a few
-        # small pivots, which is the accuracy this module is for.
-        k, idx, _ = state
-        Binv, _ = _inverse(jnp.take(A, idx, axis=1))
-        xB = x_raw = Binv @ b
+        # The basis inverse is updated in product form (a fresh one each pivot cost a third of
+        # the throughput): with Harris's ratio test no pivot is small, and step 4 certifies with
+        # a fresh inverse.
+        k, idx, Binv, _, bland = state
+        # One step of iterative refinement on each solve undoes most of the update's drift.
+        B = jnp.take(A, idx, axis=1)
+        xB = Binv @ b
+        xB = x_raw = xB + Binv @ (b - B @ xB)
         is_art = idx == N
         art_basic = jnp.any(is_art)
         x_art = jnp.sum(jnp.where(is_art, xB, 0.0))
         # Phase one while the artificial column carries weight: minimize that weight.
         phase_one = art_basic & (x_art > FEASIBILITY)
         costs = jnp.where(phase_one, phase_one_costs, c)
-        y = Binv.T @ jnp.take(costs, idx)
+        cB = jnp.take(costs, idx)
+        y = Binv.T @ cB
+        y = y + Binv.T @ (cB - B.T @ y)
         d = costs - A.T @ y
         # Basic columns have d = 0 up to rounding, and the artificial column never enters.
         basic = jnp.any(jnp.arange(N + 1)[None, :] == idx[:, None], axis=0)
         d = jnp.where(basic | (jnp.arange(N + 1) == N), 0.0, d)
-        scale = _rounding(A, costs, y)
-        q = jnp.argmin(d / scale)  # Dantzig's rule, in units of each reduced cost's rounding
-        optimal = d[q] >= -0.25 * FEASIBILITY * scale[q]  # stricter than step 4: it is refined
+        scale = jnp.abs(costs) + abs_A.T @ jnp.abs(y)  # as _rounding
+        improving = d < -0.25 * FEASIBILITY * scale  # stricter than step 4: it is refined
+        # Dantzig's rule (in units of each reduced cost's rounding); after a degenerate pivot,
+        # Bland's (the first improving column, and below the first basic column), which cannot
+        # cycle: the vertices of delta* = -1 are degenerate, and Dantzig's rule cycled there.
+        q = jnp.where(bland, jnp.argmax(improving), jnp.argmin(d / scale))
+        optimal = ~jnp.any(improving)
         delta = Binv @ A[:, q]
         # Harris's two-pass ratio test: the largest step that leaves every x_B >= -FEASIBILITY / 2,
         # then among the rows that block within it the one of largest pivot (a pivot of 1e-6 made
@@ -175,22 +214,35 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         xB = jnp.maximum(xB, 0.0)
         step = jnp.min(jnp.where(positive, (xB + 0.5 * FEASIBILITY) / safe, jnp.inf))
         blocking = positive & (xB / safe <= step)
-        # An artificial column left at weight 0 leaves on the first pivot that would move it.
-        art_leaves = is_art & ~phase_one & (jnp.abs(delta) > PIVOT * jnp.max(jnp.abs(delta)))
-        i = jnp.where(jnp.any(art_leaves), jnp.argmax(art_leaves), jnp.argmax(jnp.where(blocking, delta, -jnp.inf)))
-        primal = ~optimal & (jnp.any(blocking) | jnp.any(art_leaves))
+        i = jnp.where(bland, jnp.argmin(jnp.where(blocking, idx, N + 1)), jnp.argmax(jnp.where(blocking, delta, -jnp.inf)))
+        degenerate = xB[i] <= FEASIBILITY * delta[i]
+        primal = ~optimal & jnp.any(blocking)
         # Dual feasible but not primal feasible (the rounding of a long path, or an artificial
         # column forced out at a small weight): a dual simplex pivot on the most negative row.
         i_d = jnp.argmin(x_raw)
-        alpha = Binv[i_d] @ A
+        i_a = jnp.argmax(is_art)
+        alpha, alpha_a = jnp.stack([Binv[i_d], Binv[i_a]]) @ A
         entering = (alpha < -FEASIBILITY) & ~basic & (jnp.arange(N + 1) < N)
         q_d = jnp.argmin(jnp.where(entering, jnp.maximum(d, 0.0) / -jnp.where(entering, alpha, -1.0), jnp.inf))
         dual = optimal & ~phase_one & (x_raw[i_d] < -FEASIBILITY) & jnp.any(entering)
-        new_idx = jnp.where(rows == jnp.where(primal, i, i_d), jnp.where(primal, q, q_d).astype(idx.dtype), idx)
-        stop = ~(primal | dual)
-        return k + 1, jnp.where(stop, idx, new_idx), stop
+        # An artificial column left at weight ~0 after phase one is driven out first, by the
+        # nonbasic column of largest entry in its row (a degenerate pivot: nothing moves). Left in,
+        # the next pivot could lift its weight again and phase one undo it (seen: a cycle of two).
+        alpha_a = jnp.abs(alpha_a)
+        candidates = ~basic & (jnp.arange(N + 1) < N)
+        q_a = jnp.argmax(jnp.where(candidates, alpha_a, -1.0))
+        drive_out = art_basic & ~phase_one & (alpha_a[q_a] > PIVOT * jnp.max(alpha_a))
+        row = jnp.where(drive_out, i_a, jnp.where(primal, i, i_d))
+        column = jnp.where(drive_out, q_a, jnp.where(primal, q, q_d))
+        new_idx = jnp.where(rows == row, column.astype(idx.dtype), idx)
+        stop = ~(primal | dual | drive_out)
+        # Row ``row`` of the new inverse is the old one over the pivot; the others lose their
+        # multiple of it.
+        new_Binv = _replace_column(Binv, A @ jax.nn.one_hot(column, N + 1, dtype=dt), row, ~stop)
+        return k + 1, jnp.where(stop, idx, new_idx), new_Binv, stop, (primal & degenerate) | drive_out
 
-    _, idx, _ = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), idx, ~ok))
+    state = (jnp.zeros((), jnp.int32), idx, Binv, ~ok, jnp.zeros((), bool))
+    _, idx, _, _, _ = jax.lax.while_loop(cond, body, state)
 
     # Step 4: certify with a fresh inverse, one step of iterative refinement on each solve.
     B = jnp.take(A, idx, axis=1)
@@ -218,8 +270,8 @@ def polish(lp, sol, pivots: int):
     """:func:`crossover` applied to an :class:`~grasp_jax._lp.LPSolution` of ``lp``.
 
     Where the vertex is certified, the solution becomes that vertex with status ``OPTIMAL`` (also
-    an unfinished one: the certificate does not care how the basis was found); elsewhere it is
-    left as it was. An infeasible LP is left alone. ``pivots = 0`` returns ``sol`` unchanged.
+    an unfinished or an "infeasible" one: the certificate does not care how the basis was found);
+    elsewhere it is left as it was. ``pivots = 0`` returns ``sol`` unchanged.
 
     Returns:
         ``(solution, certified, y)``: ``y`` is the crossover's last dual vector, certified or not
@@ -227,11 +279,12 @@ def polish(lp, sol, pivots: int):
     """
     from ._lp import Status
 
-    if not pivots:
+    if isinstance(pivots, int) and not pivots:
         return sol, jnp.zeros((), bool), sol.y
     lp = jax.lax.stop_gradient(lp)
+    # Also an LP the interior-point method called infeasible: a certified vertex proves it
+    # feasible (float32's Farkas test erred on a torque LP of margin 2.4e-3: box, 3 fingers).
     x, y, certified = crossover(lp.A, lp.b, lp.c, sol.x, sol.y, pivots)
-    certified = certified & (sol.status != Status.INFEASIBLE)
     new = sol._replace(
         x=jnp.where(certified, x, sol.x),
         y=jnp.where(certified, y, sol.y),

@@ -40,8 +40,8 @@ class Status(enum.IntEnum):
     APPROXIMATE = 3
     #: Set by the caller of :func:`solve`, never by it: unfinished after the full budget, but the
     #: dual of its best iterate bounds the optimum by weak duality, which settles the question the
-    #: LP was solved for (grasp_jax: the quality LP's ``delta* < 0``, not in equilibrium). The
-    #: reported value is that bound.
+    #: LP was solved for (grasp_jax: the quality LP's ``delta* < 0``, not in equilibrium, the
+    #: reported value is that bound; the torque LP's ``l* <= 0``, no positive span, reported 0).
     BOUNDED = 4
 
     @property

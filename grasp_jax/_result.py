@@ -39,7 +39,9 @@ class GraspEvaluation:
         quality_status: ``B`` int8 :class:`grasp_jax.Status` of the quality LP: ``OPTIMAL``,
             ``NOT_CONVERGED``, or ``BOUNDED`` (unfinished, but weak duality proves ``delta* < 0``:
             not in equilibrium, ``Q = 0`` exactly; seen in float32 only).
-        torque_status: ``B`` int8 status of the torque LP (``OPTIMAL`` where none was needed).
+        torque_status: ``B`` int8 status of the torque LP (``OPTIMAL`` where none was needed;
+            ``BOUNDED``: unfinished, but a direction ``u`` with ``u . tau >= 0`` for every torque
+            proves that they do not span, margin reported 0; float32 only).
         iterations: ``B`` int32. Interior-point iterations the quality LP took.
     """
 
