@@ -13,7 +13,7 @@ from scipy.optimize import linprog
 from grasp_jax._closure import SHIFT, quality_lp
 from grasp_jax._cones import cone_edges
 from grasp_jax._crossover import FEASIBILITY, _inverse, crossover, polish
-from grasp_jax._lp import LP, Status, solve
+from grasp_jax._lp import LP, LPSolution, Status, solve
 
 from _grasps import MU, grasps, sample_sphere
 from _jit import jit
@@ -110,10 +110,16 @@ def test_inverse_matches_numpy(seed, r):
         assert float(smallest) > 0
 
 
-def test_polish_without_pivots_is_the_identity(random_lps):
-    A, b, c = (jnp.asarray(v[0]) for v in random_lps)
+@jax.jit
+def _polished(A, b, c):
     (sol,) = solve(LP(A, b, c))
-    new, certified, y = polish(LP(A, b, c), sol, 0)
+    return sol, polish(LP(A, b, c), sol, PIVOTS)
+
+
+def test_polish_without_pivots_is_the_identity():
+    z = jnp.zeros(2)
+    sol = LPSolution(z, z, z[0], jnp.int8(0), jnp.int32(0), z[0])
+    new, certified, _ = polish(LP(jnp.eye(2), jnp.ones(2), jnp.ones(2)), sol, 0)
     assert new is sol and not bool(certified)
 
 
@@ -121,10 +127,8 @@ def test_infeasible_lp_is_left_alone():
     """A Farkas-certified LP keeps its status and certificate."""
     A = jnp.array([[1.0, 1.0], [1.0, 1.0]])
     b = jnp.array([1.0, -1.0])  # x1 + x2 cannot be 1 and -1
-    lp = LP(A, b, jnp.array([1.0, 2.0]))
-    (sol,) = solve(lp)
+    sol, (new, certified, _) = _polished(A, b, jnp.array([1.0, 2.0]))
     assert sol.status == Status.INFEASIBLE
-    new, certified, _ = polish(lp, sol, PIVOTS)
     assert new.status == Status.INFEASIBLE and not bool(certified)
     np.testing.assert_array_equal(np.asarray(new.y), np.asarray(sol.y))
 
