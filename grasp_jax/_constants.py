@@ -82,7 +82,8 @@ _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
 #: points in turn (a stalled trajectory is rounding, not the problem; 20,000 sphere grasps, 4 fingers,
 #: 25 edges: verdicts that differ outside the 1e-4 band 22 with two points, 6 with four, 4 with these
 #: six; one compiled loop serves them all). A margin must exceed 2e-5, so that the verdicts of grasps
-#: whose margins are clear of 1e-4 can match float64's.
+#: whose margins are clear of 1e-4 can match float64's. Then a crossover to a certified vertex
+#: (``_crossover``): grasps with |Q32 - Q64| > 1e-4 fell from 8..312 to 0..2 in 100,000 per shape.
 _F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1,
                   restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=32, crossover_short=12)
 
