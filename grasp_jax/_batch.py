@@ -217,13 +217,13 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
         lowered = _lower(program, grasp_specs, size, shared, counts)
         text = lowered.as_text()
         if not _blocking_calls(text):
-            return _Program(_compile(lowered, text, devices, _options(devices[0].platform, grasp_specs)), devices, size)
+            return _Program(_compile(lowered, text, devices, _options(devices[0].platform)), devices, size)
         _ONE_DEVICE.add(key)
         STATS["one_device"] += 1
     program = jax.jit(_named(_blocked(fn, len(grasp_specs), local, block)))
     lowered = _lower(program, grasp_specs, local, shared, jax.ShapeDtypeStruct((), jnp.int32))
     default = (jax.local_devices()[0],)  # where jit runs a program without shardings
-    options = _options(default[0].platform, grasp_specs)
+    options = _options(default[0].platform)
     return _Program(_compile(lowered, lowered.as_text(), default, options), (), local)
 
 
@@ -242,8 +242,8 @@ def _lower(program, grasp_specs, size, shared, counts):
     return program.trace(specs, shared, counts).lower()
 
 
-def _options(platform: str, grasp_specs: tuple) -> dict:
-    """XLA options for a program on ``platform`` with per-grasp inputs ``grasp_specs``."""
+def _options(platform: str) -> dict:
+    """XLA options for a chunk program on ``platform`` (any dtype)."""
     return COMPILER_OPTIONS.get(platform, {})
 
 

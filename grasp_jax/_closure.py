@@ -294,12 +294,13 @@ def evaluate_one(
         t_margin = _min_weight_margin(tau, t_sol)
         # Unfinished after the full budget: the dual of the best iterate may still prove that the
         # torques do not span, by a direction u with u . tau >= 0 for every torque (then l* <= 0).
-        u = safe_normalize(_min_weight_certificate(tau, t_sol))
+        t_dual = _min_weight_certificate(tau, t_sol)
+        u = safe_normalize(t_dual)
         u_slack = 16.0 * jnp.finfo(tau.dtype).eps * jnp.max(jnp.abs(tau))
         t_bounded = t_full & (t_sol.status == Status.NOT_CONVERGED) & (jnp.min(tau @ u) >= -u_slack)
         t_margin = jnp.where(t_bounded, 0.0, t_margin)
         torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
-        t_cert = jnp.where(full & ((t_sol.status != Status.NOT_CONVERGED) | t_bounded), _min_weight_certificate(tau, t_sol), null)
+        t_cert = jnp.where(full & ((t_sol.status != Status.NOT_CONVERGED) | t_bounded), t_dual, null)
         t_status = jnp.where(full, jnp.where(t_bounded, Status.BOUNDED, t_sol.status), Status.OPTIMAL).astype(jnp.int8)
         t_margin = jnp.where(full, t_margin, 0.0)
     else:

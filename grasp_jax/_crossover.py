@@ -46,6 +46,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ._lp import Status
+
 #: A column enters the initial basis only if its component orthogonal to the columns already
 #: chosen is at least this fraction of its length (0.1 rejected neighbouring cone edges, which the
 #: optimum of a 25-edge cone often needs; 0.02 certified 57 of 59 hard grasps).
@@ -106,9 +108,10 @@ def _replace_column(Binv: jax.Array, column: jax.Array, row, apply) -> jax.Array
     return jnp.where(apply, new, Binv)
 
 
-def _rounding(A: jax.Array, c: jax.Array, y: jax.Array) -> jax.Array:
-    """``(N,)`` scale of the rounding of the reduced costs ``c - A^T y``: ``|c| + |A|^T |y|``."""
-    return jnp.abs(c) + jnp.abs(A).T @ jnp.abs(y)
+def _rounding(abs_A: jax.Array, c: jax.Array, y: jax.Array) -> jax.Array:
+    """``(N,)`` scale of the rounding of the reduced costs ``c - A^T y``: ``|c| + |A|^T |y|``
+    (``abs_A = |A|``, computed once)."""
+    return jnp.abs(c) + abs_A.T @ jnp.abs(y)
 
 
 def _initial_basis(A: jax.Array, score: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -198,7 +201,7 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         # Basic columns have d = 0 up to rounding, and the artificial column never enters.
         basic = jnp.any(jnp.arange(N + 1)[None, :] == idx[:, None], axis=0)
         d = jnp.where(basic | (jnp.arange(N + 1) == N), 0.0, d)
-        scale = jnp.abs(costs) + abs_A.T @ jnp.abs(y)  # as _rounding
+        scale = _rounding(abs_A, costs, y)
         improving = d < -0.25 * FEASIBILITY * scale  # stricter than step 4: it is refined
         # Dantzig's rule (in units of each reduced cost's rounding); after a degenerate pivot,
         # Bland's (the first improving column, and below the first basic column), which cannot
@@ -257,7 +260,7 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         ok
         & (smallest > CONDITION)
         & jnp.all(xB >= -FEASIBILITY)
-        & jnp.all((d >= -FEASIBILITY * _rounding(A, c, y))[:N])
+        & jnp.all((d >= -FEASIBILITY * _rounding(abs_A, c, y))[:N])
         & (jnp.sum(jnp.where(idx == N, xB, 0.0)) <= FEASIBILITY)  # an artificial basic at 0 is harmless
         & jnp.all(jnp.isfinite(xB))
         & jnp.all(jnp.isfinite(y))
@@ -277,8 +280,6 @@ def polish(lp, sol, pivots: int):
         ``(solution, certified, y)``: ``y`` is the crossover's last dual vector, certified or not
         (for a weak-duality bound such as ``_closure.quality_bound``, valid for any ``y``).
     """
-    from ._lp import Status
-
     if isinstance(pivots, int) and not pivots:
         return sol, jnp.zeros((), bool), sol.y
     lp = jax.lax.stop_gradient(lp)
