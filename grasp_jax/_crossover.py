@@ -61,6 +61,8 @@ INDEPENDENCE = 0.02
 FEASIBILITY = 1e-6
 #: Smallest pivot element of the ratio test, relative to the largest entry of the column.
 PIVOT = 1e-3
+#: Entries of a pivot column (row) below this fraction of its largest are taken as zero.
+TINY = 1e-9
 #: Smallest pivot of the final basis inverse (columns of length about 1): below, the vertex's
 #: rounding could exceed what the certificate promises, and it is not certified.
 CONDITION = 1e-4
@@ -155,6 +157,11 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
     """
     r, N = A.shape
     dt = A.dtype
+    # Rows scaled to unit length (the vertex is the same; the dual scales back at the end): the
+    # min-weight LP's row of ones has length sqrt(K) + K, its torque rows 0.01 on a contact near
+    # the first, and the initial basis found no 4 columns independent enough in the raw ones.
+    rescale = 1.0 / jnp.maximum(jnp.sqrt(jnp.sum(A * A, axis=1)), jnp.finfo(dt).tiny)
+    A, b, y = A * rescale[:, None], b * rescale, y / rescale
     idx, ok = _initial_basis(A, (c - A.T @ y) - x)
 
     # Step 2: an artificial column makes the basis primal feasible.
@@ -203,30 +210,43 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         d = jnp.where(basic | (jnp.arange(N + 1) == N), 0.0, d)
         scale = _rounding(abs_A, costs, y)
         improving = d < -0.25 * FEASIBILITY * scale  # stricter than step 4: it is refined
-        # Dantzig's rule (in units of each reduced cost's rounding); after a degenerate pivot,
-        # Bland's (the first improving column, and below the first basic column), which cannot
-        # cycle: the vertices of delta* = -1 are degenerate, and Dantzig's rule cycled there.
-        q = jnp.where(bland, jnp.argmax(improving), jnp.argmin(d / scale))
-        optimal = ~jnp.any(improving)
-        delta = Binv @ A[:, q]
-        # Harris's two-pass ratio test: the largest step that leaves every x_B >= -FEASIBILITY / 2,
-        # then among the rows that block within it the one of largest pivot (a pivot of 1e-6 made
-        # a basis of condition 1e7, whose float32 solves are noise).
-        positive = delta > PIVOT * jnp.max(jnp.abs(delta))
-        safe = jnp.where(positive, delta, 1.0)
+        # The whole tableau (r x (N + 1), cheap at r <= 7): the ratio test of every column.
+        T = Binv @ A
+        # Harris's two-pass ratio test, per column: the largest step that leaves every
+        # x_B >= -FEASIBILITY / 2, then among the rows that block within it the one of largest
+        # entry, the pivot (a pivot of 1e-6 made a basis of condition 1e7, whose float32 solves are
+        # noise; entries below PIVOT of the column's largest are taken as zero).
+        positive = T > PIVOT * jnp.max(jnp.abs(T), axis=0)
+        safe = jnp.where(positive, T, 1.0)
         xB = jnp.maximum(xB, 0.0)
-        step = jnp.min(jnp.where(positive, (xB + 0.5 * FEASIBILITY) / safe, jnp.inf))
-        blocking = positive & (xB / safe <= step)
-        i = jnp.where(bland, jnp.argmin(jnp.where(blocking, idx, N + 1)), jnp.argmax(jnp.where(blocking, delta, -jnp.inf)))
+        step = jnp.min(jnp.where(positive, (xB[:, None] + 0.5 * FEASIBILITY) / safe, jnp.inf), axis=0)
+        blocking = positive & (xB[:, None] / safe <= step)
+        # Only columns with a blocking row enter: a column without one is a ray along which the
+        # rounding of x_B, not the LP, decreases the cost (phase one stopped there with the
+        # artificial column at weight 3e-3 on two quadrilateral grasps).
+        eligible = improving & jnp.any(blocking, axis=0)
+        # Dantzig's rule (in units of each reduced cost's rounding); after a degenerate pivot,
+        # Bland's (the first eligible column, and below the first basic column), which cannot
+        # cycle: the vertices of delta* = -1 are degenerate, and Dantzig's rule cycled there.
+        q = jnp.where(bland, jnp.argmax(eligible), jnp.argmin(jnp.where(eligible, d / scale, jnp.inf)))
+        optimal = ~jnp.any(improving)
+        e_q = jax.nn.one_hot(q, N + 1, dtype=dt)
+        delta, block_q = T @ e_q, blocking @ e_q > 0
+        i = jnp.where(bland, jnp.argmin(jnp.where(block_q, idx, N + 1)), jnp.argmax(jnp.where(block_q, delta, -jnp.inf)))
         degenerate = xB[i] <= FEASIBILITY * delta[i]
-        primal = ~optimal & jnp.any(blocking)
+        primal = jnp.any(eligible)
         # Dual feasible but not primal feasible (the rounding of a long path, or an artificial
         # column forced out at a small weight): a dual simplex pivot on the most negative row.
         i_d = jnp.argmin(x_raw)
         i_a = jnp.argmax(is_art)
-        alpha, alpha_a = jnp.stack([Binv[i_d], Binv[i_a]]) @ A
-        entering = (alpha < -FEASIBILITY) & ~basic & (jnp.arange(N + 1) < N)
-        q_d = jnp.argmin(jnp.where(entering, jnp.maximum(d, 0.0) / -jnp.where(entering, alpha, -1.0), jnp.inf))
+        alpha, alpha_a = T[i_d], T[i_a]
+        # Harris's test again, on the reduced costs: the largest step that leaves every
+        # d_j >= -FEASIBILITY / 2 (in units of its rounding), then the largest |alpha_j| within it.
+        entering = (alpha < -TINY * jnp.max(jnp.abs(alpha))) & ~basic & (jnp.arange(N + 1) < N)
+        safe_a = jnp.where(entering, -alpha, 1.0)
+        d_plus = jnp.maximum(d, 0.0)
+        step_d = jnp.min(jnp.where(entering, (d_plus + 0.5 * FEASIBILITY * scale) / safe_a, jnp.inf))
+        q_d = jnp.argmax(jnp.where(entering & (d_plus / safe_a <= step_d), -alpha, -jnp.inf))
         dual = optimal & ~phase_one & (x_raw[i_d] < -FEASIBILITY) & jnp.any(entering)
         # An artificial column left at weight ~0 after phase one is driven out first, by the
         # nonbasic column of largest entry in its row (a degenerate pivot: nothing moves). Left in,
@@ -266,7 +286,7 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         & jnp.all(jnp.isfinite(y))
     )
     x = jnp.zeros(N + 1, dt).at[idx].set(jnp.maximum(xB, 0.0))[:N]
-    return x, y, certified
+    return x, y * rescale, certified
 
 
 def polish(lp, sol, pivots: int):
