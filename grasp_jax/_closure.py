@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._crossover import polish
+from ._crossover import polish, polish_all
 from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
 from ._result import GraspEvaluation
 from ._wrench import cross, primitive_wrenches
@@ -217,7 +217,7 @@ def _pivots(tol, full) -> jax.Array | int:
     return jnp.where(full, tol.crossover, tol.crossover_short)
 
 
-def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, jax.Array, jax.Array]:
+def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(delta, status, dual)`` from a solve of :func:`quality_lp`: the value with envelope
     derivatives, its status, and the dual vector behind it (for the certificate).
 
@@ -226,11 +226,12 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations) -> tuple[jax.Array, 
     confirms (float32) still settles the verdict when the dual of the interior-point iterate or of
     the crossover's last basis bounds ``delta* < 0`` by weak duality (:func:`quality_bound`): status
     ``BOUNDED``, ``delta`` is that bound, ``Q = 0`` exactly. (Seen in float32: an ill-posed LP
-    accepted at ``delta = 4e-4`` whose ``delta*`` is -1.)
+    accepted at ``delta = 4e-4`` whose ``delta*`` is -1.) ``polished``: :func:`polish`'s result
+    where the caller already has it.
     """
     tol = tolerances(q_lp.A.dtype)
     full = _full_budget(q_lp, iterations)
-    q_sol, certified, y_vertex = polish(q_lp, q_sol, _pivots(tol, full))
+    q_sol, certified, y_vertex = polished or polish(q_lp, q_sol, _pivots(tol, full))
     q_ok = q_sol.status == Status.OPTIMAL
     delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
     y_ipm = jax.lax.stop_gradient(q_sol.y)
@@ -289,7 +290,9 @@ def evaluate_one(
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
         t_full = _full_budget(t_lp, iterations)
-        t_sol, _, _ = polish(t_lp, t_sol, _pivots(tol, t_full))
+        q_polished, (t_sol, _, _) = polish_all(
+            (q_lp, t_lp), (q_sol, t_sol), (_pivots(tol, _full_budget(q_lp, iterations)), _pivots(tol, t_full))
+        )
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         # Unfinished after the full budget: the dual of the best iterate may still prove that the
@@ -305,6 +308,7 @@ def evaluate_one(
         t_margin = jnp.where(full, t_margin, 0.0)
     else:
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
+        q_polished = None
         if d == 2:
             torque_span, t_margin, t_cert = _exact_torque_2d(tau)
             if torque_test == "paper":
@@ -321,7 +325,7 @@ def evaluate_one(
 
     # Unfinished after the full budget (in float32 about 1 quality LP in 1,000 random grasps): the
     # dual of its best iterate may still prove delta* < 0, i.e. no equilibrium, Q = 0 exactly.
-    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations)
+    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, q_polished)
     q_ok = q_status == Status.OPTIMAL
     bounded = q_status == Status.BOUNDED
     equilibrium = q_ok & (delta > tol.margin)
