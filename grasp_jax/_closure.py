@@ -231,7 +231,9 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tu
     """
     tol = tolerances(q_lp.A.dtype)
     full = _full_budget(q_lp, iterations)
-    q_sol, certified, y_vertex = polished or polish(q_lp, q_sol, _pivots(tol, full))
+    if polished is None:
+        polished = polish(q_lp, q_sol, _pivots(tol, full))
+    q_sol, certified, y_vertex = polished
     q_ok = q_sol.status == Status.OPTIMAL
     delta = jnp.where(q_ok, -optimal_value(q_lp, q_sol) - SHIFT, 0.0)
     y_ipm = jax.lax.stop_gradient(q_sol.y)

@@ -341,12 +341,16 @@ def polish_all(lps: tuple, sols: tuple, pivots: tuple) -> list:
     if all(isinstance(k, int) and not k for k in pivots):
         return [(sol, jnp.zeros((), bool), sol.y) for sol in sols]
     lps = [jax.lax.stop_gradient(lp) for lp in lps]
-    r = max(lp.A.shape[0] for lp in lps)
-    N = max(lp.A.shape[1] + r - lp.A.shape[0] for lp in lps)
-    padded = [_padded(lp, sol.x, sol.y, r, N) for lp, sol in zip(lps, sols)]
-    stacked = [jnp.stack(parts) for parts in zip(*padded)]
-    budget = jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
-    xs, ys, certs = jax.vmap(crossover)(*stacked, budget)
+    if len(lps) == 1:  # nothing to pad or stack
+        (lp,), (sol,) = lps, sols
+        xs, ys, certs = (v[None] for v in crossover(lp.A, lp.b, lp.c, sol.x, sol.y, pivots[0]))
+    else:
+        r = max(lp.A.shape[0] for lp in lps)
+        N = max(lp.A.shape[1] + r - lp.A.shape[0] for lp in lps)
+        padded = [_padded(lp, sol.x, sol.y, r, N) for lp, sol in zip(lps, sols)]
+        stacked = [jnp.stack(parts) for parts in zip(*padded)]
+        budget = jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
+        xs, ys, certs = jax.vmap(crossover)(*stacked, budget)
     out = []
     for k, (lp, sol) in enumerate(zip(lps, sols)):
         r0, N0 = lp.A.shape
