@@ -333,35 +333,41 @@ def _padded(lp, x, y, r: int, N: int):
             jnp.concatenate([x, one, jnp.zeros(N - N0 - extra, dt)]), jnp.concatenate([y, jnp.zeros(extra, dt)]))
 
 
+def stacked(lps: tuple, xs: tuple, ys: tuple, pivots) -> list:
+    """:func:`crossover` of several LPs in one vmapped call: the smaller ones are padded to the
+    largest and all pivot together (one copy of the crossover in the program instead of one per
+    LP: it is a fifth of the compile time of a float32 chunk program). ``pivots``: a Python
+    integer per LP, or an ``(len(lps),)`` integer array. Returns ``(x, y, certified)`` per LP."""
+    if len(lps) == 1:  # nothing to pad or stack
+        (A, b, c), x, y = lps[0], xs[0], ys[0]
+        return [crossover(A, b, c, x, y, pivots[0])]
+    r = max(lp.A.shape[0] for lp in lps)
+    N = max(lp.A.shape[1] + r - lp.A.shape[0] for lp in lps)
+    padded = [_padded(lp, x, y, r, N) for lp, x, y in zip(lps, xs, ys)]
+    budget = pivots if isinstance(pivots, jax.Array) else jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
+    X, Y, C = jax.vmap(crossover)(*(jnp.stack(parts) for parts in zip(*padded)), budget)
+    return [(X[k, : lp.A.shape[1]], Y[k, : lp.A.shape[0]], C[k]) for k, lp in enumerate(lps)]
+
+
+def as_solution(lp, sol, x, y, certified):
+    """``sol`` replaced by the vertex ``(x, y)`` where it is certified (status ``OPTIMAL``, also for
+    an unfinished or an "infeasible" one: the certificate does not care how the basis was found).
+    Returns :func:`polish`'s triple."""
+    # float32's Farkas test erred on a torque LP of margin 2.4e-3 (box, 3 fingers).
+    new = sol._replace(
+        x=jnp.where(certified, x, sol.x),
+        y=jnp.where(certified, y, sol.y),
+        value=jnp.where(certified, lp.c @ x, sol.value),
+        status=jnp.where(certified, Status.OPTIMAL, sol.status).astype(sol.status.dtype),
+    )
+    return new, certified, y
+
+
 def polish_all(lps: tuple, sols: tuple, pivots: tuple) -> list:
-    """:func:`polish` of several LPs with one :func:`crossover`: the smaller ones are padded to the
-    largest and all are pivoted together (the crossover is a fifth of the compile time of a
-    float32 chunk program; one copy instead of two, ``evaluate`` in 3D). Returns
+    """:func:`polish` of several LPs with one :func:`crossover` (:func:`stacked`). Returns
     :func:`polish`'s triple per LP."""
     if all(isinstance(k, int) and not k for k in pivots):
         return [(sol, jnp.zeros((), bool), sol.y) for sol in sols]
     lps = [jax.lax.stop_gradient(lp) for lp in lps]
-    if len(lps) == 1:  # nothing to pad or stack
-        (lp,), (sol,) = lps, sols
-        xs, ys, certs = (v[None] for v in crossover(lp.A, lp.b, lp.c, sol.x, sol.y, pivots[0]))
-    else:
-        r = max(lp.A.shape[0] for lp in lps)
-        N = max(lp.A.shape[1] + r - lp.A.shape[0] for lp in lps)
-        padded = [_padded(lp, sol.x, sol.y, r, N) for lp, sol in zip(lps, sols)]
-        stacked = [jnp.stack(parts) for parts in zip(*padded)]
-        budget = jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
-        xs, ys, certs = jax.vmap(crossover)(*stacked, budget)
-    out = []
-    for k, (lp, sol) in enumerate(zip(lps, sols)):
-        r0, N0 = lp.A.shape
-        x, y, certified = xs[k, :N0], ys[k, :r0], certs[k]
-        # Also an LP the interior-point method called infeasible: a certified vertex proves it
-        # feasible (float32's Farkas test erred on a torque LP of margin 2.4e-3: box, 3 fingers).
-        new = sol._replace(
-            x=jnp.where(certified, x, sol.x),
-            y=jnp.where(certified, y, sol.y),
-            value=jnp.where(certified, lp.c @ x, sol.value),
-            status=jnp.where(certified, Status.OPTIMAL, sol.status).astype(sol.status.dtype),
-        )
-        out.append((new, certified, y))
-    return out
+    out = stacked(lps, [sol.x for sol in sols], [sol.y for sol in sols], pivots)
+    return [as_solution(lp, sol, *vertex) for lp, sol, vertex in zip(lps, sols, out)]

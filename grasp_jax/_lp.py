@@ -98,6 +98,11 @@ class _State(NamedTuple):
     best_x: jax.Array
     best_y: jax.Array
     best_residual: jax.Array
+    # Restarts (float32, ``solve``): the starting points run so far, iterations from the current
+    # one, and whether a step broke down (a non-finite direction froze the problem).
+    attempt: jax.Array
+    local: jax.Array
+    broken: jax.Array
 
 
 def _cholesky(M: jax.Array, pivot_tol: float, huge: float) -> list[list[jax.Array]]:
@@ -145,7 +150,7 @@ def _max_step(v: jax.Array, dv: jax.Array) -> jax.Array:
     return jnp.min(ratio)
 
 
-def _init(lp: LP, scale: float = 1.0) -> _State:
+def _init(lp: LP, scale=1.0) -> _State:
     """The starting point ``x = s = scale``, ``tau = 1``, ``kappa = scale^2``."""
     rows, cols = lp.A.shape
     dt = lp.A.dtype
@@ -160,6 +165,9 @@ def _init(lp: LP, scale: float = 1.0) -> _State:
         best_x=jnp.zeros(cols, dt),
         best_y=jnp.zeros(rows, dt),
         best_residual=jnp.full((), jnp.inf, dt),
+        attempt=jnp.zeros((), jnp.int32),
+        local=jnp.zeros((), jnp.int32),
+        broken=jnp.zeros((), bool),
     )
 
 
@@ -312,6 +320,9 @@ def _step(lp: LP, st: _State) -> _State:
         best_x=best_x,
         best_y=best_y,
         best_residual=best_residual,
+        attempt=st.attempt,
+        local=st.local + 1,
+        broken=st.broken,
     )
     # Keep every quantity finite and positive even on a wild step; a frozen problem stays put.
     # The fraction-to-boundary rule keeps the iterate positive; only a non-finite direction
@@ -320,7 +331,24 @@ def _step(lp: LP, st: _State) -> _State:
     done = st.done | optimal | infeasible
     keep = done | ~ok
     new = jax.tree_util.tree_map(lambda o, nw: jnp.where(keep, o, nw), st, new)
-    return new._replace(done=done | ~ok, iterations=jnp.where(done, st.iterations, st.iterations + 1))
+    return new._replace(done=done | ~ok, broken=st.broken | (~done & ~ok),
+                        iterations=jnp.where(done, st.iterations, st.iterations + 1))
+
+
+def _restart(lp: LP, st: _State, iterations, factors: jax.Array, count, accept_near) -> _State:
+    """After a step: a problem that has spent its budget (or broken down) without converging starts
+    again from ``x = s = factors[attempt]`` while starting points are left (``count``); otherwise,
+    or when its best iterate is within ``near`` of the tolerance (``_finish`` accepts it), it is
+    frozen."""
+    tol = tolerances(lp.A.dtype)
+    # ``local > iterations``: the budget's last step is judged by the step after it.
+    exhausted = st.broken | (~st.done & (st.local > iterations))
+    near = st.best_residual <= tol.near * tol.lp
+    again = exhausted & ~near & (st.attempt < count) & accept_near
+    factor = jax.nn.one_hot(st.attempt, factors.shape[0], dtype=factors.dtype) @ factors
+    fresh = _init(lp, factor)._replace(iterations=st.iterations, attempt=st.attempt + 1)
+    st = jax.tree_util.tree_map(lambda old, new: jnp.where(again, new, old), st, fresh)
+    return st._replace(done=st.done | (exhausted & ~again))
 
 
 def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, accept_near,
@@ -416,47 +444,36 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
         checks = tuple(_inconsistency(lp) for lp in lps)
     # An inconsistent problem is certified before the first step and frozen.
     states = tuple(_init(lp)._replace(done=inconsistent) for lp, (inconsistent, _) in zip(lps, checks))
+    accept_near = iterations >= full  # a Python bool, or a traced one
+    # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
+    # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). A problem
+    # unfinished after its budget starts again from each starting point in turn, inside the same
+    # loop (one copy of the step in the program: a second loop for the restarts cost a third of
+    # the compile time of a float32 ``evaluate``); the others stay frozen.
+    factors = tolerances(lps[0].A.dtype).restarts if accept_near is not False and not best_effort else ()
+    if restarts is not None and not isinstance(restarts, jax.Array):
+        factors = factors[: max(0, int(restarts))]
+    count = len(factors) if not isinstance(restarts, jax.Array) else jnp.clip(restarts, 0, len(factors))
+    # With restarts, each round has an extra step (``_restart``).
+    limit = (1 + len(factors)) * (iterations + 1) if factors else iterations
+    starts = jnp.asarray(factors or (1.0,), lps[0].A.dtype)
 
     def body(carry):
         k, sts = carry
-        return k + 1, tuple(_step(lp, st) for lp, st in zip(lps, sts))
+        sts = tuple(_step(lp, st) for lp, st in zip(lps, sts))
+        if factors:
+            sts = tuple(_restart(lp, st, iterations, starts, count, accept_near) for lp, st in zip(lps, sts))
+        return k + 1, sts
 
     def cond(carry):
         k, sts = carry
-        return (k < iterations) & ~jnp.all(jnp.stack([st.done for st in sts]))
+        return (k < limit) & ~jnp.all(jnp.stack([st.done for st in sts]))
 
     _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
     # A short budget (the first pass of ``_batch.Retry``) reports unfinished problems as such.
     if best_effort:
         return tuple(_finish(lp, st, *check, False, True) for lp, st, check in zip(lps, states, checks))
-    accept_near = iterations >= full  # a Python bool, or a traced one
-    sols = tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
-    # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
-    # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). Only the
-    # problems still unfinished run again, from each starting point in turn; the others stay
-    # frozen. One loop over the starting points, so that the step is compiled once for all.
-    factors = tolerances(lps[0].A.dtype).restarts if accept_near is not False else ()
-    if restarts is not None and not isinstance(restarts, jax.Array):
-        factors = factors[: max(0, int(restarts))]
-    if factors:
-
-        def restart(k, sols):
-            factor = jnp.asarray(factors, lps[0].A.dtype)[k]
-            again = tuple((sol.status == Status.NOT_CONVERGED) & accept_near for sol in sols)
-            states = tuple(_init(lp, factor)._replace(done=~a) for lp, a in zip(lps, again))
-            _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
-            return tuple(
-                jax.tree_util.tree_map(
-                    lambda old, new, a=a: jnp.where(a, new, old),
-                    sol,
-                    _finish(lp, st, *check, accept_near)._replace(iterations=st.iterations + sol.iterations),
-                )
-                for lp, st, check, sol, a in zip(lps, states, checks, sols, again)
-            )
-
-        count = len(factors) if not isinstance(restarts, jax.Array) else jnp.clip(restarts, 0, len(factors))
-        sols = jax.lax.fori_loop(0, count, restart, sols)
-    return sols
+    return tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
 
 
 def optimal_value(lp: LP, solution: LPSolution) -> jax.Array:

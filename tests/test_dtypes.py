@@ -226,3 +226,31 @@ def test_float32_targets(float32_vs_float64, name):
     """Issue 8's float32 targets on 2,000 grasps per shape (100,000: experiments/float32_accuracy.py)."""
     r = float32_vs_float64[name]
     assert r["disagree"] == 0 and r["dq"].max() <= 1e-4 and r["unconverged"] == 0
+
+
+# Two grasps whose torques about c_1 lie in a half-space (torque margin ~1e-11 in float64): the
+# quality LP is degenerate, and its float32 vertex was not certified (Q32 0.457 and 0.808 before
+# ``_closure._half_space_quality_lp``). A box (two contacts on the top face) and a cylinder (all
+# contacts on the side).
+HALF_SPACE_GRASPS = [
+    ([[-1.0, 0.09364209, 0.08946599], [1.0, 0.00793534, -0.30250073],
+      [-0.49042468, -0.07772665, 0.4], [0.14496602, -0.51325829, 0.4]],
+     [[-1, 0, 0], [1, 0, 0], [0, 0, 1], [0, 0, 1]]),
+    ([[0.37092757, -0.33528009, 0.00163357], [0.10671688, -0.48847877, -0.49702824],
+      [-0.30818972, 0.39372465, 0.1628112], [-0.45788618, 0.20084882, -0.70267432]],
+     [[0.74185514, -0.67056018, 0.0], [0.21343377, -0.97695754, 0.0],
+      [-0.61637944, 0.78744929, 0.0], [-0.91577235, 0.40169764, 0.0]]),
+]
+
+
+def test_float32_quality_when_the_torques_lie_in_a_half_space():
+    """float32 Q within 1e-4 of HiGHS (float64) on the grasps above, from a certified vertex."""
+    p = np.array([g[0] for g in HALF_SPACE_GRASPS], np.float32)
+    n = np.array([g[1] for g in HALF_SPACE_GRASPS], np.float32)
+    ev = gj.evaluate(p, n, mu=np.float32(MU))
+    assert np.all(np.abs(np.asarray(ev.torque_margin)) <= 1e-6)
+    assert np.all(np.asarray(ev.quality_status) == gj.Status.OPTIMAL)
+    for k in range(len(p)):
+        q64, _ = reference.quality_highs(p[k].astype(np.float64), n[k].astype(np.float64), MU)
+        assert q64 > 0.1  # in equilibrium, with Q far from 0: no band to hide in
+        assert abs(float(ev.quality[k]) - q64) <= 1e-4, k
