@@ -58,7 +58,8 @@ class Tolerances:
         crossover_short: the same after a short budget (the first pass of ``_batch.Retry``), where
             a quality LP whose value no vertex certifies is left for the retry pass. Every problem
             of a vmapped block waits for its slowest: 32 pivots in the first pass cost 44% of the
-            float32 throughput (box, 4 fingers, 8 edges).
+            float32 throughput (box, 4 fingers, 8 edges). After the full budget 64: with 32, a
+            sphere grasp with 25 edges stopped one pivot short of its optimal vertex.
     """
 
     lp: float
@@ -85,7 +86,7 @@ _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
 #: whose margins are clear of 1e-4 can match float64's. Then a crossover to a certified vertex
 #: (``_crossover``): grasps with |Q32 - Q64| > 1e-4 fell from 8..312 to 0..2 in 100,000 per shape.
 _F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1,
-                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=32, crossover_short=12)
+                  restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=64, crossover_short=12)
 
 
 def tolerances(dtype) -> Tolerances:

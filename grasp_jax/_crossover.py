@@ -25,16 +25,17 @@ carries its own proof of optimality, ``x_B >= 0`` and reduced costs ``c - A^T y 
    form. (A big-M cost was tried first: with ``M = 100`` it was too small on barely feasible
    grasps and already spoiled float32 reduced costs by ``M`` times the roundoff.)
 4. **Certify** with a fresh inverse: ``x_B >= -tol``, reduced costs ``>= -tol``, no artificial
-   weight, and the basis inverse well conditioned. An uncertified result is reported as such,
-   never used.
+   weight, a basis that is not singular, and refined solves with a small backward error (then the
+   value is that of the exact vertex of an LP a few roundoffs away, however ill-conditioned the
+   basis). An uncertified result is reported as such, never used.
 
 Measured (``experiments/float32_accuracy.py``, 100,000 grasps per shape, the eight shapes of the
-suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from 8..312 to 0..2 per shape
-(all but one of them with a torque margin within 1e-11 of zero, whose optimal bases have condition
-1e5 and stay uncertified), verdicts that differ outside the 1e-4 band from up to 26 to none.
-float32 ``evaluate`` runs 6% slower on a box (4 fingers, 8 edges; 32 pivots after the full budget,
-12 after the short first pass, ``_constants.Tolerances.crossover``) and twice as fast on the
-sphere with 25 edges (fewer grasps left for the retry pass).
+suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from 8..312 per shape to none
+(with ``_closure._polish_exact`` for grasps whose torques lie in a half-space), verdicts that
+differ outside the 1e-4 band from up to 26 to none. float32 ``evaluate`` runs 6% slower on a box
+(4 fingers, 8 edges; 64 pivots after the full budget, 12 after the short first pass,
+``_constants.Tolerances.crossover``) and twice as fast on the sphere with 25 edges (fewer grasps
+left for the retry pass).
 
 Everything is dense arithmetic on ``r <= 7`` rows, with one-hot products instead of gathers and
 scatters where they are hot, and rolled loops (the compile time of a chunk program matters as much
@@ -64,9 +65,17 @@ FEASIBILITY = 1e-6
 PIVOT = 1e-3
 #: Entries of a pivot column (row) below this fraction of its largest are taken as zero.
 TINY = 1e-9
-#: Smallest pivot of the final basis inverse (columns of length about 1): below, the vertex's
-#: rounding could exceed what the certificate promises, and it is not certified.
-CONDITION = 1e-4
+#: Smallest pivot of the final basis inverse (columns of length about 1): below, the basis counts
+#: as singular and the vertex is not certified. Above it, an ill-conditioned basis is certified when
+#: the refined solves have a small backward error (:data:`BACKWARD`): then ``x_B`` and ``y`` are
+#: the exact vertex of an LP whose data moved by a few roundoffs, and the value is within
+#: ``|y| |dA| |x|`` of the optimum, whatever the basis's condition. (A threshold of 1e-4 on the
+#: pivot alone left correct vertices of condition 1e4 uncertified, and the interior-point value,
+#: 0.03 off, was reported: cylinder, 7 fingers.)
+CONDITION = 1e-6
+#: Largest backward error of the refined solves ``B x_B = b`` and ``B^T y = c_B``, in units of the
+#: roundoff times ``|B| |x_B| + |b|`` (resp. ``|B|^T |y| + |c_B|``).
+BACKWARD = 64.0
 
 
 def _inverse(B: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -291,9 +300,15 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
     y = Binv.T @ cB
     y = y + Binv.T @ (cB - B.T @ y)
     d = c - A.T @ y
+    eps = jnp.finfo(dt).eps
+    abs_B = jnp.abs(B)
+    primal_ok = jnp.all(jnp.abs(b - B @ xB) <= BACKWARD * eps * (abs_B @ jnp.abs(xB) + jnp.abs(b)))
+    dual_ok = jnp.all(jnp.abs(cB - B.T @ y) <= BACKWARD * eps * (abs_B.T @ jnp.abs(y) + jnp.abs(cB)))
     certified = (
         ok
         & (smallest > CONDITION)
+        & primal_ok
+        & dual_ok
         & jnp.all(xB >= -FEASIBILITY)
         & jnp.all((d >= -FEASIBILITY * _rounding(abs_A, c, y))[:N])
         & (jnp.sum(jnp.where(idx == N, xB, 0.0)) <= FEASIBILITY)  # an artificial basic at 0 is harmless
