@@ -75,6 +75,31 @@ def test_float32_vertex_beats_the_interior_point_value(random_lps):
     assert vertex_err.max() <= ipm_err.max()
 
 
+def _ill_conditioned(rng, condition):
+    """A random LP whose unique optimum is the vertex of the first ``ROWS`` columns, a basis of the
+    given condition number (``x_B > 0``, the other columns' reduced costs > 0)."""
+    U, _ = np.linalg.qr(rng.normal(size=(ROWS, ROWS)))
+    V, _ = np.linalg.qr(rng.normal(size=(ROWS, ROWS)))
+    B = U @ np.diag(np.geomspace(1.0, 1.0 / condition, ROWS)) @ V.T
+    N = rng.normal(size=(ROWS, COLS - ROWS))
+    y = rng.normal(size=ROWS)
+    c = np.concatenate([B.T @ y, N.T @ y + rng.uniform(0.5, 2.0, COLS - ROWS)])
+    return np.concatenate([B, N], axis=1), B @ rng.uniform(0.5, 2.0, ROWS), c
+
+
+def test_float32_ill_conditioned_vertex_is_certified():
+    """A basis of condition 1e4 is certified in float32 when its refined solves have a small backward
+    error, and its value is the optimum of the float32 LP (HiGHS on the same numbers): the basis
+    inverse's smallest pivot is near 1e-4 there, and a threshold on it alone rejected such vertices."""
+    rng = np.random.default_rng(5)
+    A, b, c = (np.stack(v).astype(np.float32) for v in zip(*(_ill_conditioned(rng, 1e4) for _ in range(BATCH))))
+    x, _, cert, _ = map(np.asarray, _ipm_then_crossover(A, b, c))
+    assert cert.mean() >= 0.9
+    for k in np.nonzero(cert)[0]:
+        ref = linprog(c[k], A_eq=A[k], b_eq=b[k], bounds=(0, None), method="highs")
+        assert c[k].astype(np.float64) @ x[k] == pytest.approx(ref.fun, abs=1e-5 * (1 + abs(ref.fun)))
+
+
 def test_crossover_from_the_dual_alone():
     """An unfinished solve has no trusted primal: from ``x = 0`` and a rough ``y`` the pivots still
     reach a certified optimum on small problems."""
