@@ -248,8 +248,9 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
     round through the same compiled crossover (a loop of two rounds, the second only where needed)
     for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE` while its quality LP stays
     uncertified: the quality LP again, in the reduced form of :func:`_half_space_quality_lp`, from
-    nothing. ``full``: the full budget was spent (the second round waits for it). Returns
-    :func:`polish_all`'s triples.
+    nothing. ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the
+    crossover then starts from nothing). ``full``: the full budget was spent (the second round
+    waits for it). Returns :func:`polish_all`'s triples.
 
     Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
     ``|Q32 - Q64| > 1e-4`` were of this kind (Q32 up to 0.5 off); the reduced LP's vertex is
@@ -463,9 +464,23 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     edges = cone_edges(normals, mu, num_edges, tangents)
     lp = quality_lp(points, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
-    delta, status, _ = _quality_value(lp, sol, iterations)
-    ok = status == Status.OPTIMAL
     tol = tolerances(points.dtype)
+    polished = None
+    if tol.crossover and points.shape[-1] == 3:
+        # float32: the half-space round of evaluate (``_polish_exact``) needs the torque LP's
+        # vertex; the crossover finds it from nothing (no interior-point loop for it here), with
+        # the full budget only.
+        n, m, _ = edges.shape
+        t_lp = min_weight_lp(_torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1))
+        rows, cols = t_lp.A.shape
+        zero = jnp.zeros((), points.dtype)
+        nothing = LPSolution(jnp.zeros(cols, zero.dtype), jnp.zeros(rows, zero.dtype), zero,
+                             jnp.asarray(Status.NOT_CONVERGED, jnp.int8), jnp.zeros((), jnp.int32), zero)
+        full = _full_budget(lp, iterations)
+        t_pivots = tol.crossover if full is True else jnp.where(full, tol.crossover, 0)
+        polished, _ = _polish_exact(lp, t_lp, sol, nothing, (_pivots(tol, full), t_pivots), full)
+    delta, status, _ = _quality_value(lp, sol, iterations, polished)
+    ok = status == Status.OPTIMAL
     if signed:
         value = jnp.where(ok | (status == Status.BOUNDED), delta, 0.0)
     else:

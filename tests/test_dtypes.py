@@ -244,13 +244,16 @@ HALF_SPACE_GRASPS = [
 
 
 def test_float32_quality_when_the_torques_lie_in_a_half_space():
-    """float32 Q within 1e-4 of HiGHS (float64) on the grasps above, from a certified vertex."""
+    """float32 Q of ``evaluate`` and of ``quality`` within 1e-4 of HiGHS (float64) on the grasps
+    above, from a certified vertex."""
     p = np.array([g[0] for g in HALF_SPACE_GRASPS], np.float32)
     n = np.array([g[1] for g in HALF_SPACE_GRASPS], np.float32)
     ev = gj.evaluate(p, n, mu=np.float32(MU))
+    q32 = np.asarray(gj.quality(p, n, mu=np.float32(MU)))
     assert np.all(np.abs(np.asarray(ev.torque_margin)) <= 1e-6)
     assert np.all(np.asarray(ev.quality_status) == gj.Status.OPTIMAL)
     for k in range(len(p)):
         q64, _ = reference.quality_highs(p[k].astype(np.float64), n[k].astype(np.float64), MU)
         assert q64 > 0.1  # in equilibrium, with Q far from 0: no band to hide in
         assert abs(float(ev.quality[k]) - q64) <= 1e-4, k
+        assert abs(float(q32[k]) - q64) <= 1e-4, k
