@@ -208,14 +208,14 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
 
     # Step 3: pivots.
     def cond(state):
-        k, _, _, done, _ = state
+        k, _, _, done, _, _ = state
         return (k < pivots) & ~done
 
     def body(state):
         # The basis inverse is updated in product form (a fresh one each pivot cost a third of
         # the throughput): with Harris's ratio test no pivot is small, and step 4 certifies with
         # a fresh inverse.
-        k, idx, Binv, _, bland = state
+        k, idx, Binv, _, bland, small = state
         # One step of iterative refinement on each solve undoes most of the update's drift.
         P = _select(idx, N + 1, dt)
         B = A @ P
@@ -254,10 +254,10 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         # Only columns with a blocking row enter: a column without one is a ray along which the
         # rounding of x_B, not the LP, decreases the cost (phase one stopped there with the
         # artificial column at weight 3e-3 on two quadrilateral grasps). Where no improving column
-        # has one, smaller pivots (SMALL_PIVOT) may block: an ill-conditioned optimal basis is
-        # reached only through them, and the certificate (step 4) judges the result.
-        blocking = blocking_rows(PIVOT)
-        blocking = jnp.where(jnp.any(improving & jnp.any(blocking, axis=0)), blocking, blocking_rows(SMALL_PIVOT))
+        # has one, the next pass of the loop tries smaller pivots (``small``, SMALL_PIVOT): an
+        # ill-conditioned optimal basis is reached only through them, and the certificate (step 4)
+        # judges the result.
+        blocking = blocking_rows(jnp.where(small, SMALL_PIVOT, PIVOT))
         eligible = improving & jnp.any(blocking, axis=0)
         # Dantzig's rule (in units of each reduced cost's rounding); after a degenerate pivot,
         # Bland's (the first eligible column, and below the first basic column), which cannot
@@ -293,13 +293,15 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         column = jnp.where(drive_out, q_a, jnp.where(primal, q, q_d))
         new_idx = jnp.where(rows == row, column.astype(idx.dtype), idx)
         stop = ~(primal | dual | drive_out)
+        again = stop & ~small & jnp.any(improving)  # with smaller pivots, before stopping
         # Row ``row`` of the new inverse is the old one over the pivot; the others lose their
         # multiple of it.
         new_Binv = _replace_column(Binv, A @ jax.nn.one_hot(column, N + 1, dtype=dt), row, ~stop)
-        return k + 1, jnp.where(stop, idx, new_idx), new_Binv, stop, (primal & degenerate) | drive_out
+        return (k + 1, jnp.where(stop, idx, new_idx), new_Binv, stop & ~again,
+                jnp.where(again, bland, (primal & degenerate) | drive_out), again)
 
-    state = (jnp.zeros((), jnp.int32), idx, Binv, ~ok, jnp.zeros((), bool))
-    _, idx, _, _, _ = jax.lax.while_loop(cond, body, state)
+    state = (jnp.zeros((), jnp.int32), idx, Binv, ~ok, jnp.zeros((), bool), jnp.zeros((), bool))
+    _, idx, _, _, _, _ = jax.lax.while_loop(cond, body, state)
 
     # Step 4: certify with a fresh inverse, one step of iterative refinement on each solve.
     P = _select(idx, N + 1, dt)
