@@ -32,10 +32,8 @@ carries its own proof of optimality, ``x_B >= 0`` and reduced costs ``c - A^T y 
 Measured (``experiments/float32_accuracy.py``, 100,000 grasps per shape, the eight shapes of the
 suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from 8..312 per shape to none
 (with ``_closure._polish_exact`` for grasps whose torques lie in a half-space), verdicts that
-differ outside the 1e-4 band from up to 26 to none. float32 ``evaluate`` runs 6% slower on a box
-(4 fingers, 8 edges; 64 pivots after the full budget, 12 after the short first pass,
-``_constants.Tolerances.crossover``) and twice as fast on the sphere with 25 edges (fewer grasps
-left for the retry pass).
+differ outside the 1e-4 band from up to 26 to none (64 pivots after the full budget, 12 after the
+short first pass, ``_constants.Tolerances.crossover``; its cost in float32 throughput: README).
 
 Everything is dense arithmetic on ``r <= 7`` rows, with one-hot products instead of gathers and
 scatters where they are hot, and rolled loops (the compile time of a chunk program matters as much
@@ -343,7 +341,10 @@ def polish(lp, sol, pivots: int):
         ``(solution, certified, y)``: ``y`` is the crossover's last dual vector, certified or not
         (for a weak-duality bound such as ``_closure.quality_bound``, valid for any ``y``).
     """
-    return polish_all((lp,), (sol,), (pivots,))[0]
+    if isinstance(pivots, int) and not pivots:
+        return sol, jnp.zeros((), bool), sol.y
+    lp = jax.lax.stop_gradient(lp)
+    return as_solution(lp, sol, *crossover(lp.A, lp.b, lp.c, sol.x, sol.y, pivots))
 
 
 def _padded(lp, x, y, r: int, N: int):
@@ -366,9 +367,6 @@ def stacked(lps: tuple, xs: tuple, ys: tuple, pivots) -> list:
     largest and all pivot together (one copy of the crossover in the program instead of one per
     LP: it is a fifth of the compile time of a float32 chunk program). ``pivots``: a Python
     integer per LP, or an ``(len(lps),)`` integer array. Returns ``(x, y, certified)`` per LP."""
-    if len(lps) == 1:  # nothing to pad or stack
-        (A, b, c), x, y = lps[0], xs[0], ys[0]
-        return [crossover(A, b, c, x, y, pivots[0])]
     r = max(lp.A.shape[0] for lp in lps)
     N = max(lp.A.shape[1] + r - lp.A.shape[0] for lp in lps)
     padded = [_padded(lp, x, y, r, N) for lp, x, y in zip(lps, xs, ys)]
@@ -390,12 +388,3 @@ def as_solution(lp, sol, x, y, certified):
     )
     return new, certified, y
 
-
-def polish_all(lps: tuple, sols: tuple, pivots: tuple) -> list:
-    """:func:`polish` of several LPs with one :func:`crossover` (:func:`stacked`). Returns
-    :func:`polish`'s triple per LP."""
-    if all(isinstance(k, int) and not k for k in pivots):
-        return [(sol, jnp.zeros((), bool), sol.y) for sol in sols]
-    lps = [jax.lax.stop_gradient(lp) for lp in lps]
-    out = stacked(lps, [sol.x for sol in sols], [sol.y for sol in sols], pivots)
-    return [as_solution(lp, sol, *vertex) for lp, sol, vertex in zip(lps, sols, out)]
