@@ -108,27 +108,34 @@ def evaluate(
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
     fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test)
-    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges)
-    budget, retry = iterations, None
-    if iterations is None:
-        # A fast pass with a short budget, then the full budget for the few it leaves unfinished.
-        budget = first_pass_iterations(columns)
-    else:
-        iterations = _check_iterations(iterations)
-        budget = iterations
+    budget, retry = _passes(points, num_edges, iterations)
     with scope:
         mu = jnp.asarray(mu, points.dtype)
-        few, every = _restart_points(points.dtype)
-        if iterations is None:
-            full = np.int32(default_iterations(columns))
-            retry = (Retry((mu, full, few), _unfinished),)
-            if every > few:
-                retry += (Retry((mu, full, every), _unfinished),)
-        shared = (mu, budget if is_traced(budget) else np.int32(budget), every)
+        shared = (mu, *budget)
+        retry = tuple(Retry((mu, *pass_), _unfinished) for pass_ in retry)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
+
+
+def _passes(points, num_edges: int, iterations) -> tuple[tuple, tuple]:
+    """``(iterations, restarts)`` of the first pass and of each retry pass (:class:`Retry`) of
+    :func:`evaluate` and :func:`quality`.
+
+    Default: a fast pass with a short budget (``first_pass_iterations``), then the full budget for
+    the few grasps it leaves unfinished (float32: restarted from :data:`RETRY_RESTARTS` points,
+    then the few still unfinished from all of them). An explicit ``iterations``: one pass with that
+    budget, all restarts. The budget is an input of the program: one program serves every pass.
+    """
+    few, every = _restart_points(points.dtype)
+    if iterations is not None:
+        iterations = _check_iterations(iterations)
+        return (iterations if is_traced(iterations) else np.int32(iterations), every), ()
+    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges)
+    full = np.int32(default_iterations(columns))
+    retry = ((full, few),) + (((full, every),) if every > few else ())
+    return (np.int32(first_pass_iterations(columns)), every), retry
 
 
 def _check_iterations(iterations):
@@ -152,8 +159,8 @@ def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, to
     return evaluate(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test, tangents=tangents).force_closure
 
 
-def _quality_single(points, normals, tangents, shared, *, num_edges, signed, iterations):
-    mu, restarts = shared
+def _quality_single(points, normals, tangents, shared, *, num_edges, signed):
+    mu, iterations, restarts = shared  # traced, as in evaluate
     return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts)
 
 
@@ -187,14 +194,12 @@ def quality(
         ``(...)`` float: Q, ``0`` where the grasp is not in equilibrium (unless ``signed``).
     """
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
-    fn = _bind(_quality_single, num_edges=num_edges, signed=signed, iterations=iterations)
+    fn = _bind(_quality_single, num_edges=num_edges, signed=signed)
+    budget, retry = _passes(points, num_edges, iterations)
     with scope:
         mu = jnp.asarray(mu, points.dtype)
-        few, every = _restart_points(points.dtype)
-        # float32: the few LPs that stall after `few` starting points get a pass of their own
-        # from all of them (as in evaluate).
-        retry = Retry((mu, every), _quality_unfinished) if every > few else None
-        shared = (mu, few)
+        shared = (mu, *budget)
+        retry = tuple(Retry((mu, *pass_), _quality_unfinished) for pass_ in retry)
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
         return value
 
