@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import os
 import re
 import threading
 from typing import Callable
@@ -57,19 +58,26 @@ RETRY_FRACTION = 32
 #: * XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters: False``): the fusion emitters
 #:   build an MLIR module per fused kernel, and a chunk program has 300 to 600 of them; the classic
 #:   ones compile the same program in about half the time (float64 ``evaluate``, 4 fingers, 8
-#:   edges: 2.7-3.0 s against 4.8-6.2 s; float32 5.3 s against 8.7 s). Run time, same process,
-#:   best of 3 on 20,000 grasps (2026-12-03): float64 ``evaluate`` box 4 x 8 14.9k against 18.4k
-#:   grasps/s, cylinder 7 x 8 9.5k against 10.5k, sphere 4 x 25 5.3k against 4.9k; float32 within
-#:   noise (box 4.0k against 4.1k, sphere 1.5k against 1.4k). float32 programs keep the fusion
-#:   emitters (:data:`FLOAT32_OPTIONS`). Where an XLA does not know an option, the program is
-#:   compiled without it (:func:`_with_known_options`).
+#:   edges: 2.7-3.1 s against 4.5-6.2 s; ``quality`` 1.2-1.3 s against 2.7 s). They run it 10 to
+#:   28% slower (float64 ``evaluate``, 20,000 grasps, both programs in one process, best of 3, two
+#:   runs on 2026-12-03: box 4 x 8 14.9k / 20.1k against 18.4k / 25.8k grasps/s, cylinder 7 x 8
+#:   9.5k / 12.0k against 10.5k / 13.3k, sphere 4 x 25 5.3k / 4.6k against 4.9k / 6.5k). A long
+#:   job that would rather pay the compile time once (the persistent cache keeps the program) sets
+#:   ``GRASP_JAX_FUSION_EMITTERS=1`` (:func:`_options`). float32 programs always keep the fusion
+#:   emitters (:data:`FLOAT32_OPTIONS`).
+#:
+#: Where an XLA does not know an option, the program is compiled without it
+#: (:func:`_with_known_options`).
 COMPILER_OPTIONS: dict = {"cpu": {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}}
 #: Options of float32 chunk programs that replace those of :data:`COMPILER_OPTIONS`, by platform.
 #: float32 accuracy (``experiments/float32_accuracy.py``: ``|Q32 - Q64| <= 1e-4``) was measured
 #: with XLA's fusion emitters; the classic ones round differently, and a cylinder grasp whose
 #: quality LP is ill-conditioned (``tests/test_dtypes.py``, ``HALF_SPACE_GRASPS``) then ends
-#: 1.7e-4 from HiGHS instead of 6e-5.
+#: 1.7e-4 from HiGHS instead of 6e-5 (and float32 runs no faster with them).
 FLOAT32_OPTIONS: dict = {"cpu": {"xla_cpu_use_fusion_emitters": True}}
+#: Environment variable: a true value (``1``, ``yes``, ``true``, ``on``) compiles every chunk
+#: program with XLA's fusion emitters (longer to compile, faster to run in float64).
+FUSION_EMITTERS_ENV = "GRASP_JAX_FUSION_EMITTERS"
 
 #: Programs the concrete path has made in this process: ``"traced"`` (a program was traced and
 #: lowered), ``"compiled"`` (XLA compiled it), ``"loaded"`` (taken from the persistent cache) and
@@ -261,7 +269,14 @@ def _options(platform: str, grasp_specs: tuple) -> dict:
     options = dict(COMPILER_OPTIONS.get(platform, {}))
     if any(np.dtype(dtype) == np.float32 for _, dtype in grasp_specs):
         options.update(FLOAT32_OPTIONS.get(platform, {}))
+    if "xla_cpu_use_fusion_emitters" in options and _fusion_emitters_asked():
+        options["xla_cpu_use_fusion_emitters"] = True
     return options
+
+
+def _fusion_emitters_asked() -> bool:
+    """Whether :data:`FUSION_EMITTERS_ENV` is set to a true value (read on every program build)."""
+    return os.environ.get(FUSION_EMITTERS_ENV, "").strip().lower() in ("1", "yes", "true", "on")
 
 
 def _compile(lowered, text: str, devices: tuple, options: dict):
