@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import os
 import re
 import threading
 from typing import Callable
@@ -48,40 +47,17 @@ ACCELERATOR_CHUNK = 131072
 #: The retry pass scores the unfinished grasps ``chunk / RETRY_FRACTION`` at a time.
 RETRY_FRACTION = 32
 
-#: XLA options of the chunk programs, by platform. On a CPU:
-#:
-#: * LLVM's optimization level 1 instead of the default: a third less compile time (``quality``,
-#:   4 fingers, 8 edges: 4.8 s against 7.2 s of CPU; ``evaluate`` 11.6 s against 14.2 s) and the
-#:   same run time (20,000 grasps: 1.69 s against 1.68 s; n = 7, m = 25: 17.3 s against 18.4 s);
-#:   Q moved by at most 8.5e-10 on 20,000 sphere grasps, within the LP tolerance. Level 0 compiles
-#:   in half the time but runs 4x slower.
-#: * XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters: False``): the fusion emitters
-#:   build an MLIR module per fused kernel, and a chunk program has 300 to 600 of them; the classic
-#:   ones compile the same program in about half the time (float64 ``evaluate``, 4 fingers, 8
-#:   edges: 2.7-3.1 s against 4.5-6.2 s; ``quality`` 1.2-1.3 s against 2.7 s). They run it 10 to
-#:   28% slower (float64 ``evaluate``, 20,000 grasps, both programs in one process, best of 3, two
-#:   runs on 2026-12-03: box 4 x 8 14.9k / 20.1k against 18.4k / 25.8k grasps/s, cylinder 7 x 8
-#:   9.5k / 12.0k against 10.5k / 13.3k, sphere 4 x 25 5.3k / 4.6k against 4.9k / 6.5k). A long
-#:   job that would rather pay the compile time once (the persistent cache keeps the program) sets
-#:   ``GRASP_JAX_FUSION_EMITTERS=1`` (:func:`_options`). float32 programs always keep the fusion
-#:   emitters (:data:`FLOAT32_OPTIONS`). The optimizer's programs (``gj.optimize``) are chunk
-#:   programs too: glass, 4 fingers, 1,024 starts x 100 steps, 6.0-6.7 s against 4.8-5.6 s a
-#:   call, 7 s against 12-13 s to compile. Rounding differs: an ill-posed quality LP
-#:   (``tests/test_closure.py::test_ill_posed_quality_lp_converges``) ends at ``delta = -0.42``
-#:   instead of -1, both optima of LPs 1e-8 apart; the verdict is the same.
-#:
-#: Where an XLA does not know an option, the program is compiled without it
-#: (:func:`_with_known_options`).
-COMPILER_OPTIONS: dict = {"cpu": {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}}
-#: Options of float32 chunk programs that replace those of :data:`COMPILER_OPTIONS`, by platform.
-#: float32 accuracy (``experiments/float32_accuracy.py``: ``|Q32 - Q64| <= 1e-4``) was measured
-#: with XLA's fusion emitters; the classic ones round differently, and a cylinder grasp whose
-#: quality LP is ill-conditioned (``tests/test_dtypes.py``, ``HALF_SPACE_GRASPS``) then ends
-#: 1.7e-4 from HiGHS instead of 6e-5 (and float32 runs no faster with them).
-FLOAT32_OPTIONS: dict = {"cpu": {"xla_cpu_use_fusion_emitters": True}}
-#: Environment variable: a true value (``1``, ``yes``, ``true``, ``on``) compiles every chunk
-#: program with XLA's fusion emitters (longer to compile, faster to run in float64).
-FUSION_EMITTERS_ENV = "GRASP_JAX_FUSION_EMITTERS"
+#: XLA options of the chunk programs, by platform. On a CPU, LLVM's optimization level 1 instead
+#: of the default: a third less compile time
+#: (``quality``, 4 fingers, 8 edges: 4.8 s against 7.2 s of CPU; ``evaluate`` 11.6 s against
+#: 14.2 s) and the same run time (20,000 grasps: 1.69 s against 1.68 s; n = 7, m = 25: 17.3 s
+#: against 18.4 s); Q moved by at most 8.5e-10 on 20,000 sphere grasps, within the LP tolerance.
+#: float32 alike (``evaluate``, 4 fingers, 8 edges: 10.2 s against 12.5 s to compile, 10.5k against
+#: 8.5k grasps/s, one device); level 0 compiles in half the time but runs 4x slower.
+#: Not used: XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters: False``), which halve the
+#: compile time but change the rounding enough to end an ill-posed quality LP at a wrong optimum
+#: (tests/test_closure.py::test_ill_posed_quality_lp_converges: delta -0.42 for -1).
+COMPILER_OPTIONS: dict = {"cpu": {"xla_backend_optimization_level": 1}}
 
 #: Programs the concrete path has made in this process: ``"traced"`` (a program was traced and
 #: lowered), ``"compiled"`` (XLA compiled it), ``"loaded"`` (taken from the persistent cache) and
@@ -241,14 +217,13 @@ def _build(fn, grasp_specs, shared, local, block, devices, key) -> _Program:
         lowered = _lower(program, grasp_specs, size, shared, counts)
         text = lowered.as_text()
         if not _blocking_calls(text):
-            options = _options(devices[0].platform, grasp_specs)
-            return _Program(_compile(lowered, text, devices, options), devices, size)
+            return _Program(_compile(lowered, text, devices, _options(devices[0].platform)), devices, size)
         _ONE_DEVICE.add(key)
         STATS["one_device"] += 1
     program = jax.jit(_named(_blocked(fn, len(grasp_specs), local, block)))
     lowered = _lower(program, grasp_specs, local, shared, jax.ShapeDtypeStruct((), jnp.int32))
     default = (jax.local_devices()[0],)  # where jit runs a program without shardings
-    options = _options(default[0].platform, grasp_specs)
+    options = _options(default[0].platform)
     return _Program(_compile(lowered, lowered.as_text(), default, options), (), local)
 
 
@@ -267,20 +242,9 @@ def _lower(program, grasp_specs, size, shared, counts):
     return program.trace(specs, shared, counts).lower()
 
 
-def _options(platform: str, grasp_specs: tuple) -> dict:
-    """XLA options for a chunk program on ``platform`` whose per-grasp arrays are ``grasp_specs``
-    (``(shape, dtype)`` pairs; float32 if any is)."""
-    options = dict(COMPILER_OPTIONS.get(platform, {}))
-    if any(np.dtype(dtype) == np.float32 for _, dtype in grasp_specs):
-        options.update(FLOAT32_OPTIONS.get(platform, {}))
-    if "xla_cpu_use_fusion_emitters" in options and _fusion_emitters_asked():
-        options["xla_cpu_use_fusion_emitters"] = True
-    return options
-
-
-def _fusion_emitters_asked() -> bool:
-    """Whether :data:`FUSION_EMITTERS_ENV` is set to a true value (read on every program build)."""
-    return os.environ.get(FUSION_EMITTERS_ENV, "").strip().lower() in ("1", "yes", "true", "on")
+def _options(platform: str) -> dict:
+    """XLA options for a chunk program on ``platform`` (any dtype)."""
+    return COMPILER_OPTIONS.get(platform, {})
 
 
 def _compile(lowered, text: str, devices: tuple, options: dict):
@@ -290,24 +254,10 @@ def _compile(lowered, text: str, devices: tuple, options: dict):
     if compiled is not None:
         STATS["loaded"] += 1
         return compiled
-    compiled = _with_known_options(lowered, options)
+    compiled = lowered.compile(compiler_options=options)
     STATS["compiled"] += 1
     _cache.store(name, compiled)
     return compiled
-
-
-def _with_known_options(lowered, options: dict):
-    """``lowered.compile(compiler_options=options)``, leaving out the options this XLA does not
-    know (an option of :data:`COMPILER_OPTIONS` may be new or retired in another jaxlib)."""
-    options = dict(options)
-    while True:
-        try:
-            return lowered.compile(compiler_options=options)
-        except Exception as err:  # jax.errors.JaxRuntimeError, XlaRuntimeError in older jaxlibs
-            unknown = re.search(r"No such compile option: '([^']+)'", str(err))
-            if unknown is None or unknown.group(1) not in options:
-                raise
-            del options[unknown.group(1)]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -25,8 +25,6 @@ compiled. Two caches share the folder:
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 #: The suite's compilation cache (see the docstring), before JAX is imported.
@@ -43,24 +41,6 @@ os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)  # see the docstring
 # instead of 123 with an empty cache (level 0: 120, its programs run slower).
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=1").strip()
-
-
-def _xla_knows(flag: str) -> bool:
-    """Whether this jaxlib's XLA accepts ``flag`` in ``XLA_FLAGS`` (it aborts on one it does not
-    know, so a fresh interpreter tries it; about a second, once per run: the pytest-xdist workers
-    inherit the result in ``XLA_FLAGS``)."""
-    probe = "import jax; jax.jit(lambda x: x + 1).lower(1.0).compile()"
-    env = {**os.environ, "XLA_FLAGS": flag, "JAX_PLATFORMS": "cpu"}
-    return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True).returncode == 0
-
-
-# And with XLA's classic CPU emitters, as the library's chunk programs are (same place): they
-# compile a program in about half the time of the fusion emitters (one MLIR module per fused
-# kernel), and compiling is most of the suite's time. Spelled out in ``XLA_FLAGS``, so that the
-# processes the tests start inherit it too.
-_CLASSIC = "--xla_cpu_use_fusion_emitters=false"
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", "") and _xla_knows(_CLASSIC):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _CLASSIC).strip()
 
 import hypothesis
 import jax

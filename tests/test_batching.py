@@ -278,25 +278,3 @@ def test_cache_is_read_only_beside_jax_persistent_cache(tmp_path):
     assert out.returncode == 0, out.stderr
     assert not list((tmp_path / "gj").glob("grasp_jax-*")), "grasp_jax's cache was written"
     assert list((tmp_path / "jax").iterdir()), "JAX's cache was not used"
-
-
-def test_compiler_options_by_dtype_and_environment(monkeypatch):
-    """float64 chunk programs compile with XLA's classic CPU emitters (half the compile time),
-    float32 ones with the fusion emitters (their accuracy was measured with them);
-    ``GRASP_JAX_FUSION_EMITTERS=1`` asks for the fusion emitters everywhere."""
-    f64, f32 = (((4, 3), np.dtype(np.float64)),), (((4, 3), np.dtype(np.float32)), ((4,), np.dtype(np.int32)))
-    monkeypatch.delenv(_batch.FUSION_EMITTERS_ENV, raising=False)
-    assert _batch._options("cpu", f64)["xla_cpu_use_fusion_emitters"] is False
-    assert _batch._options("cpu", f32)["xla_cpu_use_fusion_emitters"] is True
-    assert _batch._options("cpu", f64)["xla_backend_optimization_level"] == 1
-    assert _batch._options("gpu", f64) == {}
-    monkeypatch.setenv(_batch.FUSION_EMITTERS_ENV, "1")
-    assert _batch._options("cpu", f64)["xla_cpu_use_fusion_emitters"] is True
-
-
-def test_options_this_xla_does_not_know_are_left_out():
-    lowered = jax.jit(lambda x: x + 1.0).lower(1.0)
-    compiled = _batch._with_known_options(lowered, {"xla_no_such_option_here": True, "xla_backend_optimization_level": 1})
-    assert float(compiled(2.0)) == 3.0
-    with pytest.raises(Exception, match="xla_backend_optimization_level"):
-        _batch._with_known_options(lowered, {"xla_backend_optimization_level": "not a number"})
