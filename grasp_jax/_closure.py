@@ -244,20 +244,20 @@ def _original_dual(y: jax.Array, R: jax.Array) -> jax.Array:
 
 
 def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivots: tuple, full):
-    """:func:`polish` of the quality and torque LPs of a 3D exact evaluation (one :func:`stacked` crossover), then a second
-    round through the same compiled crossover (a loop of two rounds, the second only where needed)
-    for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE` while its quality LP stays
-    uncertified: the quality LP again, in the reduced form of :func:`_half_space_quality_lp`, from
-    nothing. ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the
-    crossover then starts from nothing). ``full``: the full budget was spent (the second round
-    waits for it). Returns :func:`polish`'s triples.
+    """:func:`polish` of the quality and torque LPs of a 3D exact evaluation (one :func:`stacked`
+    crossover), then a second round through the same compiled crossover (a loop of two rounds, the
+    second only where needed) for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE`
+    while its quality LP stays uncertified: the quality LP again, in the reduced form of
+    :func:`_half_space_quality_lp`, from nothing. ``t_sol``: the torque LP's interior-point
+    solution, or zeros (``quality_one``: the crossover then starts from nothing). ``full``: the full
+    budget was spent (the second round waits for it). Returns :func:`polish`'s triples.
 
     Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
     ``|Q32 - Q64| > 1e-4`` were of this kind (Q32 up to 0.5 off); the reduced LP's vertex is
     certified on them and within 1e-6 of float64's Q.
     """
     if all(isinstance(k, int) and not k for k in pivots):  # float64: no crossover
-        return [(sol, jnp.zeros((), bool), sol.y) for sol in (q_sol, t_sol)]
+        return [polish(q_lp, q_sol, 0), polish(t_lp, t_sol, 0)]
     q_lp, t_lp = jax.lax.stop_gradient(q_lp), jax.lax.stop_gradient(t_lp)
     r, N = q_lp.A.shape
     K = t_lp.A.shape[1] - 1
