@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._crossover import as_solution, polish, stacked
+from ._crossover import SENSITIVE, as_solution, polish, sensitivity, stacked
 from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
 from ._result import GraspEvaluation
 from ._wrench import cross, primitive_wrenches
@@ -246,11 +246,16 @@ def _original_dual(y: jax.Array, R: jax.Array) -> jax.Array:
 def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivots: tuple, full):
     """:func:`polish` of the quality and torque LPs of a 3D exact evaluation (one :func:`stacked`
     crossover), then a second round through the same compiled crossover (a loop of two rounds, the
-    second only where needed) for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE`
-    while its quality LP stays uncertified: the quality LP again, in the reduced form of
-    :func:`_half_space_quality_lp`, from nothing. ``t_sol``: the torque LP's interior-point
-    solution, or zeros (``quality_one``: the crossover then starts from nothing). ``full``: the full
-    budget was spent (the second round waits for it). Returns :func:`polish`'s triples.
+    second only where needed) for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE`:
+    the quality LP again, in the reduced form of :func:`_half_space_quality_lp`, from nothing. On
+    such a grasp round one's vertex is never taken, even certified: the full quality LP is
+    ill-posed there (its optimal dual is ~1e4-1e5, against ~2-5 elsewhere, so a few roundoffs in
+    its data move ``delta*`` by up to 4e-3 and the vertex the crossover reaches depends on the
+    CPU's rounding order). Without a certified reduced vertex the quality LP stays uncertified.
+    ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the crossover
+    then starts from nothing). ``full``: the full budget was spent (the second round waits for it;
+    until then such a grasp is uncertified and goes to the retry pass). Returns :func:`polish`'s
+    triples.
 
     Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
     ``|Q32 - Q64| > 1e-4`` were of this kind (Q32 up to 0.5 off); the reduced LP's vertex is
@@ -273,11 +278,17 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
         # Round two keeps round one's torque vertex: that LP had no second pivot budget.
         xt, yt, ct = (jnp.where(first, new, old) for new, old in zip((xt, yt, ct), best[3:]))
         reduced, R = _half_space_quality_lp(q_lp, safe_normalize(-yt[:3]))
+        # On such a grasp round one's vertex, certified or not, is never the answer: the LP is
+        # ill-posed (a few roundoffs in its data move delta* by 1e-3) and the vertex found
+        # depends on the CPU's rounding order (issue 27: 6e-5 to 1.7e-4 off under AVX-512, AVX2,
+        # SSE4.2). Only the reduced LP's vertex is taken; without it the value stays uncertified.
+        half = ct & (1.0 / K - xt[-1] <= HALF_SPACE)
+        cq = jnp.where(first, cq & ~half, cq)
         take = first | cq
         xq = jnp.where(take, xq, best[0])
         yq = jnp.where(first, yq, jnp.where(cq, _original_dual(yq, R), best[1]))
         cq = jnp.where(take, cq, best[2])
-        need = first & full & ct & (1.0 / K - xt[-1] <= HALF_SPACE) & ~cq
+        need = first & full & half
         nothing = (jnp.zeros(N + 1, dt), jnp.zeros(r, dt))
         again = jnp.asarray([REDUCED_PIVOTS, 0], jnp.int32)
         return k + 1, (reduced, *nothing), again, (xq, yq, cq, xt, yt, ct), need
@@ -342,7 +353,14 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tu
         bound, slack = jnp.where(tighter, bound_v, bound), jnp.where(tighter, slack_v, slack)
         y_bound = jnp.where(tighter, y_vertex, y_ipm)
     unfinished = full & (q_sol.status == Status.NOT_CONVERGED)
-    suspect = (q_ok & ~certified & (delta > -tol.margin)) if tol.crossover else False
+    if tol.crossover:
+        # A certified vertex of an ill-posed LP (a grasp whose torques lie in a half-space, whose
+        # torque LP the short pass did not solve: ``quality``) waits for the full budget, where
+        # ``_polish_exact`` reduces the LP.
+        ill_posed = sensitivity(q_lp.A, jax.lax.stop_gradient(q_sol.x), jax.lax.stop_gradient(q_sol.y)) > SENSITIVE
+        suspect = q_ok & (~certified | (ill_posed & ~full)) & (delta > -tol.margin)
+    else:
+        suspect = False
     bounded = (unfinished | suspect) & (bound + slack < -tol.margin)
     delta = jnp.where(bounded, jax.lax.stop_gradient(bound), delta)
     status = jnp.where(bounded, Status.BOUNDED, q_sol.status)
