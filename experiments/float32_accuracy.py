@@ -20,13 +20,22 @@ Usage::
 
     python experiments/float32_accuracy.py                 # 100,000 grasps per shape
     python experiments/float32_accuracy.py --num 20000 --configs box:3:4:8 quad:2:3
+    python experiments/float32_accuracy.py --isa AVX2      # XLA compiles for AVX2 at most
 
-Writes ``experiments/results/float32_accuracy/results.json`` and ``results.md``.
+``--isa`` sets ``--xla_cpu_max_isa`` (``SSE4_2``, ``AVX``, ``AVX2``, ``AVX512``...; the default is
+the host's): XLA compiles for the host's instruction set, so vector width, FMA contraction and the
+order of reductions, and with them float32 results, differ between CPUs; this reproduces a narrower
+CPU on a wider one. The ``halfspace`` shape (every contact on the side of a cylinder: the torques
+about ``c_1`` lie in a half-space, the quality LP is ill-posed) is the hardest case for float32.
+
+Writes ``experiments/results/float32_accuracy/results.json`` and ``results.md`` (with ``--isa``: in
+``float32_accuracy/<isa>/``).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -37,7 +46,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import _common
-from _grasps import MU, QUAD, STAR, grasps, sample_box, sample_cylinder, sample_polygon, sample_sphere
+from _grasps import (MU, QUAD, STAR, grasps, sample_box, sample_cylinder, sample_cylinder_side, sample_polygon,
+                     sample_sphere)
 
 BAND = 1e-4
 SAMPLERS = {
@@ -46,10 +56,11 @@ SAMPLERS = {
     "box": sample_box,
     "cylinder": sample_cylinder,
     "sphere": sample_sphere,
+    "halfspace": sample_cylinder_side,
 }
 #: shape:d:n[:m]
 DEFAULT_CONFIGS = ["quad:2:3", "star:2:4", "box:3:4:8", "cylinder:3:4:8", "sphere:3:4:8", "box:3:3:8",
-                   "cylinder:3:7:8", "sphere:3:4:25"]
+                   "cylinder:3:7:8", "sphere:3:4:25", "halfspace:3:4:8"]
 
 
 def clear_of_band(delta, torque_margin, band=BAND):
@@ -112,7 +123,13 @@ def main(argv=None) -> int:
     ap = _common.parser("float32_accuracy", __doc__)
     ap.add_argument("--num", type=int, default=100_000, help="grasps per shape (default %(default)s)")
     ap.add_argument("--configs", nargs="*", default=DEFAULT_CONFIGS, help="shape:d:n[:m] (default: %(default)s)")
+    ap.add_argument("--isa", default=None, help="--xla_cpu_max_isa for XLA (SSE4_2, AVX, AVX2, ...; default: the host's)")
     args = ap.parse_args(argv)
+    if args.isa:  # before JAX is imported (compare() imports it)
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_max_isa={args.isa}".strip()
+    isa = args.isa or "host"
+    if args.isa and args.out == _common.RESULTS / "float32_accuracy":
+        args.out = args.out / args.isa.lower()
     rows, results = [], []
     for k, spec in enumerate(args.configs):
         name, d, n, *rest = spec.split(":")
@@ -129,8 +146,8 @@ def main(argv=None) -> int:
          "in band", "unconv f32", "unconv f64", "bounded f32 / wrong", "s f32 / f64"], rows)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "results.json").write_text(json.dumps({"band": BAND, "mu": MU, "results": results}, indent=1))
-    _common.write(args.out, "# float32 against float64\n\n" + text)
+    (args.out / "results.json").write_text(json.dumps({"band": BAND, "mu": MU, "isa": isa, "results": results}, indent=1))
+    _common.write(args.out, f"# float32 against float64 (XLA ISA: {isa})\n\n" + text)
     ok = all(max(r["max_abs_dQ"], r["max_abs_dQ_quality"]) <= 1e-4 and r["disagree_outside_band"] == 0 and r["unconverged_32"] == 0
              for r in results)
     print("targets met" if ok else "targets NOT met")

@@ -8,10 +8,10 @@ The library changes no JAX configuration, so it cannot switch on JAX's own persi
 process-wide setting, initialized once). Instead it keeps its own: the chunk programs of
 ``_batch`` are compiled ahead of time (``jit(...).lower(...).compile()``) and their executables
 serialized with :mod:`jax.experimental.serialize_executable`, one file per program, named by a
-hash of the lowered program text, the compiler options, the JAX and jaxlib versions, the platform
-and the devices. A program of the same key is loaded instead of compiled (well under a second).
-Files that cannot be read, written or loaded are ignored: the program is compiled as without a
-cache.
+hash of the lowered program text, the compiler options, the JAX and jaxlib versions, the platform,
+the host CPU (:func:`host_cpu`), ``XLA_FLAGS`` and the devices. A program of the same key is loaded
+instead of compiled (well under a second). Files that cannot be read, written or loaded are
+ignored: the program is compiled as without a cache.
 
 Neither the library nor its command line switches on JAX's own persistent cache. Where the caller
 has (``jax_compilation_cache_dir`` set), this cache is only read, never written: JAX's cache keeps
@@ -38,7 +38,23 @@ OFF = ("", "0", "off", "no", "none", "false")
 #: Prefix and suffix of the library's cache files.
 PREFIX, SUFFIX = "grasp_jax-", ".xla"
 #: Bumped when the file layout or the key changes.
-_VERSION = "1"
+_VERSION = "2"
+
+
+def host_cpu() -> str:
+    """The host CPU's model and instruction-set flags (``/proc/cpuinfo`` on Linux, else what
+    :mod:`platform` says). XLA compiles a CPU program for the host's instruction set: a cache shared
+    by machines of different CPUs (a home folder on a cluster) must not hand an AVX-512 program to
+    an AVX2 machine (an illegal instruction), nor one CPU's float32 rounding to another."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags", "Features", "CPU part"))]
+        found = "".join(sorted(set(lines)))
+    except OSError:
+        found = ""
+    return found or f"{platform.machine()} {platform.processor()}"
 
 
 def directory() -> Path | None:
@@ -65,6 +81,7 @@ def key(lowered_text: str, options: dict, devices: tuple) -> str:
         client.platform,
         str(getattr(client, "platform_version", "")),
         os.environ.get("XLA_FLAGS", ""),
+        host_cpu(),
         repr(sorted(options.items())),
         repr([(d.platform, d.device_kind, d.id, d.process_index) for d in devices]),
         lowered_text,

@@ -278,3 +278,19 @@ def test_cache_is_read_only_beside_jax_persistent_cache(tmp_path):
     assert out.returncode == 0, out.stderr
     assert not list((tmp_path / "gj").glob("grasp_jax-*")), "grasp_jax's cache was written"
     assert list((tmp_path / "jax").iterdir()), "JAX's cache was not used"
+
+
+def test_cache_key_names_the_host_cpu_and_the_xla_flags(monkeypatch):
+    """A cache folder shared by machines of different CPUs (a cluster's home folder) or read under
+    other ``XLA_FLAGS`` (``--xla_cpu_max_isa``) never hands over a program compiled for another
+    instruction set."""
+    from grasp_jax import _cache
+
+    devices = tuple(jax.devices()[:1])
+    base = _cache.key("module", {}, devices)
+    assert _cache.key("module", {}, devices) == base
+    monkeypatch.setattr(_cache, "host_cpu", lambda: "another CPU")
+    assert _cache.key("module", {}, devices) != base
+    monkeypatch.undo()
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX2")
+    assert _cache.key("module", {}, devices) != base

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
 import textwrap
@@ -18,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _grasps import MU, grasps, sample_box, sample_sphere
+from _grasps import MU, grasps, sample_box, sample_cylinder_side, sample_sphere
 
 import grasp_jax as gj
 from grasp_jax import _precision, reference
@@ -257,3 +258,53 @@ def test_float32_quality_when_the_torques_lie_in_a_half_space():
         assert q64 > 0.1  # in equilibrium, with Q far from 0: no band to hide in
         assert abs(float(ev.quality[k]) - q64) <= 1e-4, k
         assert abs(float(q32[k]) - q64) <= 1e-4, k
+
+
+def test_float32_on_grasps_whose_torques_lie_in_a_half_space():
+    """300 random grasps on the side of a cylinder (every one's torques about c_1 lie in a
+    half-space: ill-posed quality LPs, the hardest float32 case): ``evaluate`` and ``quality`` in
+    float32 against float64, |dQ| <= 1e-4 and equal verdicts outside the band."""
+    p, n = grasps(sample_cylinder_side, 300, 4, np.random.default_rng(27))
+    e64 = gj.evaluate(p, n, mu=MU)
+    p32, n32 = p.astype(np.float32), n.astype(np.float32)
+    e32 = gj.evaluate(p32, n32, mu=np.float32(MU))
+    q32 = np.asarray(gj.quality(p32, n32, mu=np.float32(MU)), np.float64)
+    delta, tm = np.asarray(e64.delta), np.asarray(e64.torque_margin)
+    clear = ((delta > -BAND) & (tm > -BAND)) == ((delta > BAND) & (tm > BAND))
+    assert np.all(e32.converged)
+    assert np.max(np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64.quality))) <= 1e-4
+    assert np.max(np.abs(q32 - np.asarray(e64.quality))) <= 1e-4
+    assert not np.any(clear & (np.asarray(e32.force_closure) != np.asarray(e64.force_closure)))
+
+
+# ---------------------------------------------------------------------------------------------
+# The float32 tests above under a narrower instruction set than the host's (issue 27): XLA compiles
+# for the host's CPU, so vector width, FMA contraction and the order of reductions, and with them
+# float32 results, differ between CPUs. ``--xla_cpu_max_isa`` compiles for a smaller instruction
+# set on any x86-64 machine: AVX2 (no AVX-512: the AMD EPYC machines of this project) and SSE4.2,
+# the smallest XLA offers.
+
+#: Set in the child process, whose run of this file must not start children of its own.
+_ISA_CHILD = "GRASP_JAX_TEST_ISA"
+FLOAT32_TESTS = (
+    "test_float32_verdicts_and_quality",
+    "test_float32_targets",
+    "test_float32_unfinished_quality_lp_bounded_by_its_dual",
+    "test_float32_quality_when_the_torques_lie_in_a_half_space",
+    "test_float32_on_grasps_whose_torques_lie_in_a_half_space",
+)
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="--xla_cpu_max_isa is x86-64's")
+@pytest.mark.skipif(bool(os.environ.get(_ISA_CHILD)), reason="already under a narrower instruction set")
+@pytest.mark.parametrize("isa", ["AVX2", "SSE4_2"])
+def test_float32_under_a_narrower_instruction_set(isa):
+    env = dict(os.environ, **{_ISA_CHILD: isa})
+    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_cpu_max_isa={isa}".strip()
+    tests = [f"{__file__}::{name}" for name in FLOAT32_TESTS]
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", *tests],
+        capture_output=True, text=True, env=env, timeout=900, check=False,
+    )
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-2000:]
+    assert f"{len(FLOAT32_TESTS) + 1} passed" in proc.stdout, proc.stdout[-2000:]  # targets: a parametrized pair
