@@ -194,8 +194,10 @@ def _exact_torque_2d(tau: jax.Array):
 # ---------------------------------------------------------------------------------------------
 # float32: the quality LP of a grasp whose torques about c_1 lie in a half-space.
 
-#: A certified torque LP margin ``l*`` at most this (float32 rounding leaves ~1e-8 on exact zeros)
-#: means the torques lie in the half-space ``u . tau >= 0`` of its dual direction ``u``.
+#: A certified torque LP margin ``|l*|`` at most this (float32 rounding leaves ~1e-8 on exact zeros)
+#: means the torques lie in the closed half-space ``u . tau >= 0`` of its dual direction ``u`` and
+#: some on its boundary plane. (``l* < 0``: all of them strictly inside, which forces
+#: ``delta* = -1`` robustly; nothing to reduce.)
 HALF_SPACE = 1e-7
 #: Columns with ``u . tau_j`` above this fraction of ``max |tau_j|`` are off the plane ``u . tau = 0``
 #: (exactly: the torques of a box grasp's contacts on one face; the others are ~1e-8).
@@ -246,15 +248,14 @@ def _original_dual(y: jax.Array, R: jax.Array) -> jax.Array:
 def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivots: tuple, full):
     """:func:`polish` of the quality and torque LPs of a 3D exact evaluation (one :func:`stacked`
     crossover), then a second round through the same compiled crossover (a loop of two rounds, the
-    second only where needed) for a grasp whose torque LP certifies ``l* <=`` :data:`HALF_SPACE`:
+    second only where needed) for a grasp whose torque LP certifies ``|l*| <=`` :data:`HALF_SPACE`:
     the quality LP again, in the reduced form of :func:`_half_space_quality_lp`, from nothing. On
     such a grasp round one's vertex is never taken, even certified: the full quality LP is
     ill-posed there (its optimal dual is ~1e4-1e5, against ~2-5 elsewhere, so a few roundoffs in
     its data move ``delta*`` by up to 4e-3 and the vertex the crossover reaches depends on the
     CPU's rounding order). Without a certified reduced vertex the quality LP stays uncertified.
     ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the crossover
-    then starts from nothing). ``full``: the full budget was spent (the second round waits for it;
-    until then such a grasp is uncertified and goes to the retry pass). Returns :func:`polish`'s
+    then starts from nothing). ``full``: unused (kept for the callers). Returns :func:`polish`'s
     triples.
 
     Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
@@ -282,13 +283,13 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
         # ill-posed (a few roundoffs in its data move delta* by 1e-3) and the vertex found
         # depends on the CPU's rounding order (issue 27: 6e-5 to 1.7e-4 off under AVX-512, AVX2,
         # SSE4.2). Only the reduced LP's vertex is taken; without it the value stays uncertified.
-        half = ct & (1.0 / K - xt[-1] <= HALF_SPACE)
+        half = ct & (jnp.abs(1.0 / K - xt[-1]) <= HALF_SPACE)  # l* ~ 0: on the boundary
         cq = jnp.where(first, cq & ~half, cq)
         take = first | cq
         xq = jnp.where(take, xq, best[0])
         yq = jnp.where(first, yq, jnp.where(cq, _original_dual(yq, R), best[1]))
         cq = jnp.where(take, cq, best[2])
-        need = first & full & half
+        need = first & half
         nothing = (jnp.zeros(N + 1, dt), jnp.zeros(r, dt))
         again = jnp.asarray([REDUCED_PIVOTS, 0], jnp.int32)
         return k + 1, (reduced, *nothing), again, (xq, yq, cq, xt, yt, ct), need
