@@ -16,6 +16,9 @@ from ._api import force_closure as force_closure
 from ._api import min_weight as min_weight
 from ._api import quality as quality
 from ._baseline import ferrari_canny as ferrari_canny
+from ._contact import CONTACTS as CONTACTS
+from ._contact import dexnet_torsion as dexnet_torsion
+from ._contact import patch_torsion as patch_torsion
 from ._cones import cone_edges as _cone_edges  # noqa: F401
 from ._lp import Status as Status
 from ._objectives import OBJECTIVES as OBJECTIVES
@@ -35,6 +38,9 @@ __all__ = [
     "quality",
     "min_weight",
     "ferrari_canny",
+    "CONTACTS",
+    "patch_torsion",
+    "dexnet_torsion",
     "central_axis",
     "CentralAxis",
     "GraspEvaluation",

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _closure
+from ._contact import CONTACTS, columns_per_contact
 from ._batch import Retry, map_grasps
 from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterations, tolerances
 from ._lp import Status
@@ -22,15 +23,37 @@ from ._validate import check_grasps, check_int, check_num_edges, check_scalar, i
 _TORQUE_TESTS = ("exact", "paper")
 
 
-def _check_common(points, normals, mu, num_edges, tangents):
+def _check_common(points, normals, mu, num_edges, tangents, torsion=0.0):
     """Validated inputs and the precision context the call runs in (see ``_precision``)."""
     points, normals, tangents, batch = check_grasps(points, normals, tangents)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
-    if is_traced(mu):
+    if is_traced(mu, torsion):
         points, normals, tangents = _as_traced(points, normals, tangents)
-    scope = scope_for(points.dtype, is_traced(points, normals, tangents, mu))
+    scope = scope_for(points.dtype, is_traced(points, normals, tangents, mu, torsion))
     return points, normals, tangents, batch, mu, num_edges, scope
+
+
+def check_contact(contact, torsion, d: int):
+    """``(contact, torsion)`` validated: a known model, a torsion (a finite length >= 0) exactly
+    where the model has one, hard contacts only in 2D. ``torsion`` comes back as a float (0 for
+    hard contacts) or a tracer."""
+    if contact not in CONTACTS:
+        raise ValueError(f"contact must be one of {', '.join(map(repr, CONTACTS))}; got {contact!r}")
+    if contact == "hard":
+        if torsion is not None:
+            raise ValueError("torsion is the torsional coefficient of soft contacts; pass contact='soft' "
+                             "(or 'dexnet-soft') with it, or leave it out for hard contacts")
+        return contact, 0.0
+    if d == 2:
+        raise ValueError(f"contact={contact!r} is 3D only: in the plane a contact's moment about its normal "
+                         "is about an in-plane axis, outside the planar wrench space (f_x, f_y, tau_z)")
+    if torsion is None:
+        helper = "gj.patch_torsion(radius, mu)" if contact == "soft" else "gj.dexnet_torsion(finger_radius, mu)"
+        raise ValueError(f"contact={contact!r} needs torsion=, the largest moment about the normal "
+                         f"{'per unit normal force (a length)' if contact == 'soft' else 'of a contact'}; "
+                         f"e.g. {helper}")
+    return contact, check_scalar("torsion", torsion, positive=False, minimum=0.0)
 
 
 def _as_traced(*arrays):
@@ -67,9 +90,10 @@ def _restart_points(dtype) -> tuple[np.int32, np.int32]:
     return np.int32(min(RETRY_RESTARTS, every)), np.int32(every)
 
 
-def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test):
-    mu, iterations, restarts = shared  # traced: every budget runs one compiled program
-    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts)
+def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test, contact):
+    (mu, torsion), iterations, restarts = shared  # traced: every budget runs one compiled program
+    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
+                                 contact, torsion)
 
 
 def evaluate(
@@ -82,6 +106,8 @@ def evaluate(
     tangents=None,
     iterations: int | None = None,
     progress: bool = False,
+    contact: str = "hard",
+    torsion=None,
 ) -> GraspEvaluation:
     """Decide force-closure and compute the quality Q of a batch of grasps.
 
@@ -100,26 +126,35 @@ def evaluate(
             that stall in a pass of their own, :data:`RETRY_RESTARTS`); an explicit number is
             one pass with that budget.
         progress: show a progress bar (concrete inputs only).
+        contact: the contact model: ``"hard"`` (point contact with friction, the paper's),
+            ``"soft"`` (soft finger: a moment about the normal up to ``torsion`` times the normal
+            force) or ``"dexnet-soft"`` (Dex-Net's soft-finger columns); 3D only, see
+            ``grasp_jax._contact``.
+        torsion: the soft contact's torsional coefficient, a length >= 0 (``"soft"``:
+            :func:`grasp_jax.patch_torsion` of a patch radius; ``"dexnet-soft"``:
+            :func:`grasp_jax.dexnet_torsion`). Required for soft contacts, refused for hard ones.
 
     Returns:
         :class:`GraspEvaluation` whose fields have the leading batch shape.
     """
     if torque_test not in _TORQUE_TESTS:
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
-    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
-    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test)
-    budget, retry = _passes(points, num_edges, iterations)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
+                                                                           torsion)
+    contact, torsion = check_contact(contact, torsion, points.shape[-1])
+    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+    budget, retry = _passes(points, num_edges, iterations, contact)
     with scope:
-        mu = jnp.asarray(mu, points.dtype)
-        shared = (mu, *budget)
-        retry = tuple(Retry((mu, *pass_), _unfinished) for pass_ in retry)
+        friction = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype))
+        shared = (friction, *budget)
+        retry = tuple(Retry((friction, *pass_), _unfinished) for pass_ in retry)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
     _warn_unconverged(result.quality_status, "quality LPs")
     _warn_unconverged(result.torque_status, "torque LPs")
     return result
 
 
-def _passes(points, num_edges: int, iterations) -> tuple[tuple, tuple]:
+def _passes(points, num_edges: int, iterations, contact: str = "hard") -> tuple[tuple, tuple]:
     """``(iterations, restarts)`` of the first pass and of each retry pass (:class:`Retry`) of
     :func:`evaluate` and :func:`quality`.
 
@@ -132,7 +167,7 @@ def _passes(points, num_edges: int, iterations) -> tuple[tuple, tuple]:
     if iterations is not None:
         iterations = _check_iterations(iterations)
         return (iterations if is_traced(iterations) else np.int32(iterations), every), ()
-    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges)
+    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges, contact)
     full = np.int32(default_iterations(columns))
     retry = ((full, few),) + (((full, every),) if every > few else ())
     return (np.int32(first_pass_iterations(columns)), every), retry
@@ -144,24 +179,27 @@ def _check_iterations(iterations):
     return check_int("iterations", iterations)
 
 
-def _lp_columns(n: int, d: int, num_edges: int) -> int:
-    """Columns of the largest LP of a grasp: the quality LP's ``n m + 1``."""
-    return n * (2 if d == 2 else num_edges) + 1
+def _lp_columns(n: int, d: int, num_edges: int, contact: str = "hard") -> int:
+    """Columns of the largest LP of a grasp: the quality LP's ``K + 1`` (hard: ``K = n m``)."""
+    return n * (2 if d == 2 else columns_per_contact(contact, num_edges)) + 1
 
 
 def _unfinished(result: GraspEvaluation) -> jax.Array:
     return (result.quality_status == Status.NOT_CONVERGED) | (result.torque_status == Status.NOT_CONVERGED)
 
 
-def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, torque_test: str = "exact", tangents=None):
+def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, torque_test: str = "exact", tangents=None,
+                  contact: str = "hard", torsion=None):
     """``(...)`` bool: whether each grasp is force-closure (Proposition 2). Arguments as
     :func:`evaluate`; ``torque_test="paper"`` reproduces eq. (15) / (21)."""
-    return evaluate(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test, tangents=tangents).force_closure
+    return evaluate(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test, tangents=tangents,
+                    contact=contact, torsion=torsion).force_closure
 
 
-def _quality_single(points, normals, tangents, shared, *, num_edges, signed):
-    mu, iterations, restarts = shared  # traced, as in evaluate
-    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts)
+def _quality_single(points, normals, tangents, shared, *, num_edges, signed, contact):
+    (mu, torsion), iterations, restarts = shared  # traced, as in evaluate
+    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts, contact,
+                                torsion)
 
 
 def _quality_unfinished(out) -> np.ndarray:
@@ -177,15 +215,18 @@ def quality(
     signed: bool = False,
     tangents=None,
     iterations: int | None = None,
+    contact: str = "hard",
+    torsion=None,
 ):
-    """The paper's quality Q (eq. 23) of each grasp, differentiable in ``points`` and ``normals``.
+    """The paper's quality Q (eq. 23) of each grasp, differentiable in ``points``, ``normals``,
+    ``mu`` and ``torsion``.
 
     Q is the optimum ``delta*`` of the normalized equilibrium LP; derivatives come from the
     envelope theorem on the LP's primal-dual solution (no iteration is differentiated), so
     ``jax.grad`` and ``jax.jacrev`` work and are finite everywhere.
 
     Args:
-        points, normals, mu, num_edges, tangents, iterations: as :func:`evaluate`.
+        points, normals, mu, num_edges, tangents, iterations, contact, torsion: as :func:`evaluate`.
         signed: return ``delta*`` itself, negative where the grasp is not in equilibrium, instead
             of clipping it to 0. Its gradient pulls a grasp towards equilibrium from anywhere,
             which is what a contact optimizer wants.
@@ -193,20 +234,23 @@ def quality(
     Returns:
         ``(...)`` float: Q, ``0`` where the grasp is not in equilibrium (unless ``signed``).
     """
-    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
-    fn = _bind(_quality_single, num_edges=num_edges, signed=signed)
-    budget, retry = _passes(points, num_edges, iterations)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
+                                                                           torsion)
+    contact, torsion = check_contact(contact, torsion, points.shape[-1])
+    fn = _bind(_quality_single, num_edges=num_edges, signed=signed, contact=contact)
+    budget, retry = _passes(points, num_edges, iterations, contact)
     with scope:
-        mu = jnp.asarray(mu, points.dtype)
-        shared = (mu, *budget)
-        retry = tuple(Retry((mu, *pass_), _quality_unfinished) for pass_ in retry)
+        friction = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype))
+        shared = (friction, *budget)
+        retry = tuple(Retry((friction, *pass_), _quality_unfinished) for pass_ in retry)
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
         return value
 
 
-def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations):
-    mu, origin, torque_scale = shared
-    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, iterations)
+def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations, contact):
+    mu, torsion, origin, torque_scale = shared
+    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, iterations,
+                                   contact, torsion)
 
 
 def min_weight(
@@ -219,6 +263,8 @@ def min_weight(
     torque_scale: float = 1.0,
     tangents=None,
     iterations: int | None = None,
+    contact: str = "hard",
+    torsion=None,
 ):
     """The classical force-closure margin: ``l*`` of the min-weight LP on the primitive wrenches,
 
@@ -228,7 +274,9 @@ def min_weight(
     at least ``l*``). Independent of Proposition 2, this is the reference definition.
 
     Args:
-        points, normals, mu, num_edges, tangents, iterations: as :func:`evaluate`.
+        points, normals, mu, num_edges, tangents, iterations, contact, torsion: as :func:`evaluate`
+            (soft contacts: the wrenches of ``grasp_jax._contact``; torsion moments are divided
+            by ``torque_scale`` like the torques).
         origin: ``(d,)`` point torques are taken about (default: the frame origin). ``l*`` does
             not depend on it; its sign never does.
         torque_scale: torques are divided by this length (> 0).
@@ -237,8 +285,10 @@ def min_weight(
         ``(...)`` float ``l*``: 0 where the wrenches do not span the wrench space, ``-inf`` where
         no affine combination of them vanishes (LP infeasible).
     """
-    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents)
+    points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
+                                                                           torsion)
     d = points.shape[-1]
+    contact, torsion = check_contact(contact, torsion, d)
     if origin is not None and not is_traced(origin):
         origin = np.asarray(origin, points.dtype)
     if origin is not None and origin.shape != (d,):
@@ -247,10 +297,11 @@ def min_weight(
     if is_traced(origin, torque_scale) and not is_traced(points):
         points, normals, tangents = _as_traced(points, normals, tangents)
         scope = scope_for(points.dtype, traced=True)
-    fn = _bind(_min_weight_single, num_edges=num_edges, iterations=iterations)
+    fn = _bind(_min_weight_single, num_edges=num_edges, iterations=iterations, contact=contact)
     with scope:
         origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
-        shared = (jnp.asarray(mu, points.dtype), origin, jnp.asarray(torque_scale, points.dtype))
+        shared = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype), origin,
+                  jnp.asarray(torque_scale, points.dtype))
         margin, status = map_grasps(fn, (points, normals, tangents), shared, batch)
     _warn_unconverged(status, "min-weight LPs")
     return margin

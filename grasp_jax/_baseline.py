@@ -8,6 +8,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from . import reference
 from ._constants import DEFAULT_NUM_EDGES
+from ._api import check_contact
 from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
 
 
@@ -37,6 +38,8 @@ def ferrari_canny(
     torque_scale: float = 1.0,
     tangents=None,
     progress: bool = False,
+    contact: str = "hard",
+    torsion=None,
 ):
     """Ferrari-Canny epsilon (L2) and hull volume of each grasp, with qhull.
 
@@ -48,6 +51,8 @@ def ferrari_canny(
         torque_scale: torques are divided by this length (GraspIt: the largest distance from the
             centre of mass to the object's surface).
         progress: show a progress bar.
+        contact, torsion: the contact model, as :func:`grasp_jax.evaluate` (torsion moments are
+            divided by ``torque_scale`` like the torques).
 
     Returns:
         ``(epsilon, volume)``: two NumPy arrays of the leading batch shape.
@@ -57,7 +62,7 @@ def ferrari_canny(
             on concrete NumPy arrays. Call it outside the transformation, or use
             :func:`grasp_jax.min_weight` or :func:`grasp_jax.quality`, which compose.
     """
-    if is_traced(points, normals, tangents, mu, origin, torque_scale):
+    if is_traced(points, normals, tangents, mu, origin, torque_scale, torsion):
         raise TypeError(
             "grasp_jax.ferrari_canny computes the convex hull with qhull (SciPy) on concrete NumPy "
             "arrays and cannot be traced by jax.jit, jax.vmap or jax.grad. Call it outside the "
@@ -70,6 +75,7 @@ def ferrari_canny(
     torque_scale = check_scalar("torque_scale", torque_scale)
     points, normals = np.asarray(points, float), np.asarray(normals, float)
     d = points.shape[-1]
+    contact, torsion = check_contact(contact, torsion, d)
     if origin is not None:
         origin = np.asarray(origin, float)
         if origin.shape != (d,):
@@ -87,6 +93,6 @@ def ferrari_canny(
         indices = tqdm(indices, unit="grasp", desc="qhull epsilon")
     for k in indices:
         w = reference.wrenches(flat_p[k], flat_n[k], mu, num_edges, origin, torque_scale,
-                               None if flat_t is None else flat_t[k])
+                               None if flat_t is None else flat_t[k], contact, torsion)
         eps[k], vol[k] = epsilon_one(w)
     return eps.reshape(batch), vol.reshape(batch)

@@ -25,7 +25,8 @@ from ._constants import default_iterations, tolerances
 from ._crossover import SENSITIVE, as_solution, polish, sensitivity, stacked
 from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
 from ._result import GraspEvaluation
-from ._wrench import cross, primitive_wrenches
+from ._contact import Columns, columns, wrench_columns
+from ._wrench import cross
 
 
 def _arm_scale(points: jax.Array) -> jax.Array:
@@ -54,25 +55,33 @@ def _torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:
 SHIFT = 2.0
 
 
-def quality_lp(points: jax.Array, edges: jax.Array) -> LP:
+def about_first(points: jax.Array, normals: jax.Array, edges: jax.Array, contact: str = "hard", torsion=0.0) -> Columns:
+    """The wrench columns of a contact model (``_contact``) with torques about ``c_1`` divided by
+    the grasp's size: the columns of the quality and torque LPs."""
+    return columns(edges, _torques_about_first(points, edges), normals, contact, torsion, _arm_scale(points))
+
+
+def quality_lp(cols: Columns, edges: jax.Array) -> LP:
     """The equilibrium LP of eq. (17)-(20) in the always-feasible normalized form.
 
-    ``max delta  s.t.  sum a_ij v_ij + delta z_1 = 0,  sum a_ij tau_ij = 0,  sum a = 1,  a >= 0``
-    with ``delta`` free (``a_1j = 1/m, delta = -1`` is always feasible). Then ``delta* > 0`` iff
-    eq. (17) has a solution, and ``delta* = Q`` of eq. (23) there (Charnes-Cooper). The standard
-    form uses ``delta' = delta + SHIFT >= 0``: variables ``(a_11..a_nm, delta')``, rows
-    ``(force: d, torque: 1 or 3, sum: 1)``.
+    ``max delta  s.t.  sum a_k f_k + delta z_1 = 0,  sum a_k tau_k = 0,  sum a = 1,  a >= 0``
+    over the columns ``(f_k, tau_k)`` of :func:`about_first` (hard contacts: the cone edges
+    ``v_ij`` and their torques ``tau_ij``) with ``delta`` free (``a = 1/m`` on contact 1's edges,
+    ``delta = -1`` is feasible for every contact model: soft columns come in pairs whose torsion
+    cancels). Then ``delta* > 0`` iff eq. (17) has a solution, and ``delta* = Q`` of eq. (23)
+    there (Charnes-Cooper). The standard form uses ``delta' = delta + SHIFT >= 0``: variables
+    ``(a_1..a_K, delta')``, rows ``(force: d, torque: 1 or 3, sum: 1)``. ``edges``: ``(n, m, d)``,
+    whose first cone gives ``z_1``.
     """
-    n, m, d = edges.shape
     z1 = jnp.mean(edges[0], axis=0)  # the mean of the first cone's edges is its axis
     z1 = safe_normalize(z1)
-    tau = _torques_about_first(points, edges)
-    force_rows = jnp.concatenate([edges.reshape(n * m, d).T, z1[:, None]], axis=1)
-    torque_rows = jnp.concatenate([tau.reshape(n * m, -1).T, jnp.zeros((tau.shape[-1], 1), tau.dtype)], axis=1)
-    sum_row = jnp.concatenate([jnp.ones((1, n * m), edges.dtype), jnp.zeros((1, 1), edges.dtype)], axis=1)
+    K, t = cols.torque.shape
+    force_rows = jnp.concatenate([cols.force.T, z1[:, None]], axis=1)
+    torque_rows = jnp.concatenate([cols.torque.T, jnp.zeros((t, 1), edges.dtype)], axis=1)
+    sum_row = jnp.concatenate([jnp.ones((1, K), edges.dtype), jnp.zeros((1, 1), edges.dtype)], axis=1)
     A = jnp.concatenate([force_rows, torque_rows, sum_row], axis=0)
-    b = jnp.concatenate([SHIFT * z1, jnp.zeros(tau.shape[-1], edges.dtype), jnp.ones(1, edges.dtype)])
-    c = jnp.zeros(n * m + 1, edges.dtype).at[-1].set(-1.0)
+    b = jnp.concatenate([SHIFT * z1, jnp.zeros(t, edges.dtype), jnp.ones(1, edges.dtype)])
+    c = jnp.zeros(K + 1, edges.dtype).at[-1].set(-1.0)
     return LP(A, b, c)
 
 
@@ -380,6 +389,8 @@ def evaluate_one(
     tangents: jax.Array | None = None,
     iterations: int | None = None,
     restarts: int | None = None,
+    contact: str = "hard",
+    torsion=0.0,
 ) -> GraspEvaluation:
     """Force-closure verdict, quality Q and certificate of one grasp.
 
@@ -392,15 +403,16 @@ def evaluate_one(
         tangents: optional ``(n, 3)`` first tangent of each 3D contact frame.
         iterations: interior-point iterations (default from the problem size).
         restarts: float32 starting points an unfinished LP runs from (``_lp.solve``; default all).
+        contact, torsion: the contact model (``_contact``) and its torsional coefficient.
     """
     tol = tolerances(points.dtype)
     d = points.shape[-1]
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
-    n, m, _ = edges.shape
-    tau = _torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1)
+    cols = about_first(points, normals, edges, contact, torsion)
+    tau = cols.torque[cols.fixed:]
 
-    q_lp = quality_lp(points, edges)
+    q_lp = quality_lp(cols, edges)
     if d == 3 and torque_test == "exact":
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
@@ -475,13 +487,14 @@ def evaluate_one(
 
 
 def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None,
-                restarts=None):
+                restarts=None, contact: str = "hard", torsion=0.0):
     """``(Q, LP status)`` of one grasp: Q is ``delta*`` of the quality LP, clipped at 0 unless
-    ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``restarts``: see
-    :func:`evaluate_one`."""
+    ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``restarts``,
+    ``contact``, ``torsion``: see :func:`evaluate_one`."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
-    lp = quality_lp(points, edges)
+    cols = about_first(points, normals, edges, contact, torsion)
+    lp = quality_lp(cols, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
     tol = tolerances(points.dtype)
     polished = None
@@ -489,8 +502,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
         # float32: the half-space round of evaluate (``_polish_exact``) needs the torque LP's
         # vertex; the crossover finds it from nothing (no interior-point loop for it here), with
         # the full budget only.
-        n, m, _ = edges.shape
-        t_lp = min_weight_lp(_torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1))
+        t_lp = min_weight_lp(cols.torque[cols.fixed:])
         rows, cols = t_lp.A.shape
         zero = jnp.zeros((), points.dtype)
         nothing = LPSolution(jnp.zeros(cols, zero.dtype), jnp.zeros(rows, zero.dtype), zero,
@@ -507,15 +519,15 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     return value, status
 
 
-def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None):
-    """``(l*, status)`` of the classical min-weight LP on all primitive wrenches of one grasp,
-    differentiable in ``points`` and ``normals`` (see :func:`min_weight_value`)."""
+def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None,
+                   contact: str = "hard", torsion=0.0):
+    """``(l*, status)`` of the classical min-weight LP on all primitive wrenches of one grasp (of
+    the contact model, ``_contact``), differentiable in ``points`` and ``normals`` (see
+    :func:`min_weight_value`)."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges, tangents)
-    w = primitive_wrenches(points, edges, origin)
-    d = points.shape[-1]
-    w = w.at[..., d:].divide(torque_scale)
-    return min_weight_value(w.reshape(-1, w.shape[-1]), iterations)
+    return min_weight_value(wrench_columns(points, normals, edges, contact, torsion, origin, torque_scale).wrenches,
+                            iterations)
 
 
 def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False) -> tuple[jax.Array, jax.Array]:

@@ -44,20 +44,15 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ._api import _bind, _check_common
+from ._api import _bind, _check_common, check_contact
 from ._batch import map_grasps
-from ._closure import (
-    SHIFT,
-    _exact_torque_2d,
-    _torques_about_first,
-    min_weight_value,
-    quality_lp,
-)
+from ._closure import SHIFT, _exact_torque_2d, about_first, min_weight_value, quality_lp
+from ._contact import wrench_columns
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
 from ._lp import Status, has_value, optimal_value, solve
 from ._validate import check_scalar
-from ._wrench import cross, primitive_wrenches
+from ._wrench import cross
 
 #: Objectives :func:`objective_one` knows, in the order of the module docstring.
 OBJECTIVES: tuple[str, ...] = ("closure", "closure_any", "min_weight", "signed_q", "dfc", "dfc_eig")
@@ -75,44 +70,48 @@ FLOOR = -10.0
 DFC_EPSILON = 0.01
 
 
-def signed_quality(points, edges, iterations=None, best_effort: bool = False) -> jax.Array:
+def signed_quality(cols, edges, iterations=None, best_effort: bool = False) -> jax.Array:
     """``delta*`` of the always-feasible quality LP (``Q`` where positive), envelope derivatives.
 
     Args:
-        points: ``(n, d)``; edges: ``(n, m, d)`` cone edges (:func:`cone_edges`).
+        cols: the grasp's wrench columns about ``c_1`` (``_closure.about_first``); edges:
+            ``(n, m, d)`` cone edges (:func:`cone_edges`).
         iterations, best_effort: as :func:`grasp_jax._lp.solve`."""
-    lp = quality_lp(points, edges)
+    lp = quality_lp(cols, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, best_effort=best_effort)
     return jnp.where(has_value(sol), -optimal_value(lp, sol) - SHIFT, 0.0)
 
 
-def torque_margin(points, edges, iterations=None, best_effort: bool = False) -> jax.Array:
-    """``T`` of the module docstring: > 0 iff the torques of contacts 2..n about ``c_1``
-    positively span R^3 (R in 2D). Arguments as :func:`signed_quality`."""
-    n, m, d = edges.shape
-    tau = _torques_about_first(points, edges)[1:].reshape((n - 1) * m, -1)
-    if d == 2:
+def torque_margin(cols, iterations=None, best_effort: bool = False) -> jax.Array:
+    """``T`` of the module docstring: > 0 iff the torques about ``c_1`` of the columns of the
+    torque test (hard contacts: of contacts 2..n) positively span R^3 (R in 2D). Arguments as
+    :func:`signed_quality`."""
+    tau = cols.torque[cols.fixed:]
+    if tau.shape[-1] == 1:
         return _exact_torque_2d(tau)[1]
     margin, status = min_weight_value(tau, iterations, best_effort)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
 
 
-def _closure(points, normals, mu, num_edges, iterations, best_effort):
-    edges = cone_edges(safe_normalize(normals), mu, num_edges)
-    delta = signed_quality(points, edges, iterations, best_effort)
-    torque = TORQUE_WEIGHT * torque_margin(points, edges, iterations, best_effort)
+def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="hard", torsion=0.0):
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges)
+    cols = about_first(points, normals, edges, contact, torsion)
+    delta = signed_quality(cols, edges, iterations, best_effort)
+    torque = TORQUE_WEIGHT * torque_margin(cols, iterations, best_effort)
     # Where both are negative their sum, so that the torque term still pulls where delta* sits on
     # its floor -1 (the first contact alone: a constant, though the LP's dual gives it a gradient).
     return jnp.minimum(jnp.minimum(delta, torque), delta + torque), delta, torque
 
 
 def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None,
-                      best_effort: bool = False) -> jax.Array:
+                      best_effort: bool = False, contact="hard", torsion=0.0) -> jax.Array:
     """``K l*`` of the min-weight LP on all ``K`` primitive wrenches, torques about ``center`` over
     ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible."""
-    edges = cone_edges(safe_normalize(normals), mu, num_edges)
-    w = primitive_wrenches((points - center) / scale, edges)
-    w = w.reshape(-1, w.shape[-1])
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges)
+    # Points in units of scale: torsion moments (a length times a force) are divided by it too.
+    w = wrench_columns((points - center) / scale, normals, edges, contact, torsion / scale).wrenches
     margin, status = min_weight_value(w, iterations, best_effort)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, w.shape[0] * margin)
 
@@ -136,7 +135,7 @@ def dfc_energy(points, normals, center, scale, eig: bool) -> jax.Array:
 
 
 def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None,
-                  best_effort: bool = False):
+                  best_effort: bool = False, contact: str = "hard", torsion=0.0):
     """``(value, monitors)`` of objective ``kind`` for one grasp (larger is better).
 
     Args:
@@ -148,28 +147,31 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
         iterations: interior-point iterations (default from the LP size).
         best_effort: LPs unfinished after ``iterations`` give their best iterate's value (see
             :func:`grasp_jax._lp.solve`): what ``gj.optimize`` uses, with a short budget.
+        contact, torsion: the contact model (``_contact``); the DFC energies ignore it.
 
     Returns:
         ``value: ()`` and ``monitors``: ``{"delta": delta*, "torque": weighted T}`` for the closure
         objectives (about the reported ``c_1``), empty otherwise.
     """
     if kind == "closure":
-        value, delta, torque = _closure(points, normals, mu, num_edges, iterations, best_effort)
+        value, delta, torque = _closure(points, normals, mu, num_edges, iterations, best_effort, contact, torsion)
         return value, {"delta": delta, "torque": torque}
     if kind == "closure_any":
         points, normals = jnp.asarray(points), jnp.asarray(normals)
         n = points.shape[0]
         rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
         values, deltas, torques = jax.vmap(
-            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort)
+            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort, contact, torsion)
         )(rolled)
         k = jnp.argmin(values)
         return values[k], {"delta": deltas[0], "torque": torques[0]}
     if kind == "min_weight":
-        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations, best_effort), {}
+        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations, best_effort, contact,
+                                 torsion), {}
     if kind == "signed_q":
-        edges = cone_edges(safe_normalize(normals), mu, num_edges)
-        return signed_quality(points, edges, iterations, best_effort), {}
+        normals = safe_normalize(normals)
+        edges = cone_edges(normals, mu, num_edges)
+        return signed_quality(about_first(points, normals, edges, contact, torsion), edges, iterations, best_effort), {}
     if kind in ("dfc", "dfc_eig"):
         return -dfc_energy(points, normals, center, scale, eig=kind == "dfc_eig"), {}
     raise ValueError(f"objective must be one of {OBJECTIVES}; got {kind!r}")
@@ -184,9 +186,10 @@ def is_positive(value, dtype) -> jax.Array:
 # The batched public function.
 
 
-def _objective_single(points, normals, shared, *, num_edges, kind, iterations):
-    mu, center, scale = shared
-    return objective_one(points, normals, mu, num_edges, kind, center, scale, iterations)[0]
+def _objective_single(points, normals, shared, *, num_edges, kind, iterations, contact):
+    mu, torsion, center, scale = shared
+    return objective_one(points, normals, mu, num_edges, kind, center, scale, iterations, contact=contact,
+                         torsion=torsion)[0]
 
 
 def objective(
@@ -199,13 +202,15 @@ def objective(
     center=None,
     scale: float = 1.0,
     iterations: int | None = None,
+    contact: str = "hard",
+    torsion=None,
 ):
     """An optimizer's objective (larger is better) for a batch of grasps, differentiable in
     ``points`` and ``normals`` (``jax.grad``, ``jit``, ``vmap``); see the module docstring.
 
     Args:
         points, normals: ``(..., n, d)``, normals outward; ``c_1`` is contact 0.
-        mu, num_edges, iterations: as :func:`grasp_jax.evaluate`.
+        mu, num_edges, iterations, contact, torsion: as :func:`grasp_jax.evaluate`.
         kind: one of :data:`OBJECTIVES`.
         center: ``(d,)`` the object's centre (default the origin) and ``scale`` its radius: torques
             of ``"min_weight"`` and the DFC energies are taken about ``center`` in units of ``scale``.
@@ -216,13 +221,15 @@ def objective(
     """
     if kind not in OBJECTIVES:
         raise ValueError(f"kind must be one of {', '.join(map(repr, OBJECTIVES))}; got {kind!r}")
-    points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None)
+    points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None, torsion)
     scale = check_scalar("scale", scale)
     d = points.shape[-1]
+    contact, torsion = check_contact(contact, torsion, d)
     with scope:
         center = jnp.zeros(d, points.dtype) if center is None else jnp.asarray(center, points.dtype)
         if center.shape != (d,):
             raise ValueError(f"center must have shape ({d},); got {center.shape}")
-        fn = _bind(_objective_single, num_edges=num_edges, kind=kind, iterations=iterations)
-        shared = (jnp.asarray(mu, points.dtype), center, jnp.asarray(scale, points.dtype))
+        fn = _bind(_objective_single, num_edges=num_edges, kind=kind, iterations=iterations, contact=contact)
+        shared = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype), center,
+                  jnp.asarray(scale, points.dtype))
         return map_grasps(fn, (points, normals), shared, batch)

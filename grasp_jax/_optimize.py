@@ -35,7 +35,7 @@ import numpy as np
 import optax
 
 from . import surfaces as _surfaces
-from ._api import _bind, evaluate
+from ._api import _bind, _lp_columns, check_contact, evaluate
 from ._batch import map_grasps
 from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
@@ -205,15 +205,15 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 
 
 def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool,
-             iterations: int):
+             iterations: int, contact: str = "hard"):
     """Advance one start ``length`` steps. ``args``: the leaves of the start's state
     ``(contacts, optimizer state, travel, best contacts, best objective, best Q)`` (built in
     :func:`_run`; ``travel: (n, d)`` is the sum of the updates so far, the ``params`` the optimizer
-    sees), then ``shared = (surface, mu, offset)``.
+    sees), then ``shared = (surface, (mu, torsion), offset)``.
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
-    *leaves, (surface, mu, offset) = args
+    *leaves, (surface, (mu, torsion), offset) = args
     contacts, opt_state, travel, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
     n, d = contacts.face.shape[0], surface.dim
     dtype = contacts.coords.dtype
@@ -223,7 +223,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     def value(v, contacts):
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
         return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
-                             iterations, best_effort=True)
+                             iterations, best_effort=True, contact=contact, torsion=torsion)
 
     def step(carry, i):
         contacts, opt_state, travel, best, best_value, best_q = carry
@@ -238,7 +238,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
         elif monitor:
             points, normals = jax.vmap(surface.embed)(contacts)
             closure, aux = objective_one(points, normals, mu, num_edges, "closure", surface.center, surface.scale,
-                                         iterations, best_effort=True)
+                                         iterations, best_effort=True, contact=contact, torsion=torsion)
             q = jnp.where(closure > margin, aux["delta"], 0.0)
         else:
             q = jnp.zeros((), dtype)
@@ -327,6 +327,8 @@ def optimize(
     monitor: bool = True,
     iterations: int | None = None,
     progress: bool = False,
+    contact: str = "hard",
+    torsion=None,
 ) -> OptimizeResult:
     """Move the contacts of many grasps over an object's surface to maximize an objective.
 
@@ -371,6 +373,8 @@ def optimize(
             inexact gradient, never a verdict (the reported grasps are scored by ``evaluate``
             with its full budget).
         progress: show a progress bar over the steps.
+        contact, torsion: the contact model, as :func:`grasp_jax.evaluate` (the objective and the
+            final evaluation both use it).
 
     Returns:
         :class:`OptimizeResult`.
@@ -384,6 +388,7 @@ def optimize(
     steps = check_int("steps", steps)
     mu = check_scalar("mu", mu)
     num_edges = check_num_edges(num_edges)
+    contact, torsion = check_contact(contact, torsion, surface.dim)
     if iterations is not None:
         iterations = check_int("iterations", iterations)
     if learning_rate is None:
@@ -419,9 +424,11 @@ def optimize(
             lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
         )
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
-        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress)
+        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
+                      contact, torsion)
         points, normals_out, best_value, history, qualities = result
-        evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges)
+        evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges, contact=contact,
+                              torsion=None if contact == "hard" else torsion)
     reason = _end_reasons(np.asarray(evaluation.force_closure), history)
     return OptimizeResult(
         points=points, normals=normals_out, evaluation=evaluation, objective=best_value, history=history,
@@ -432,7 +439,8 @@ def optimize(
     )
 
 
-def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iterations, progress):
+def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iterations, progress, contact="hard",
+         torsion=0.0):
     """All starts through ``steps`` steps in compiled calls of equal length (:data:`SEGMENTS`,
     :data:`MIN_SEGMENT`)."""
     starts, n = contacts.face.shape[:2]
@@ -443,10 +451,10 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     state = (contacts, opt_state, travel, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, max(1, steps // MIN_SEGMENT)))
-    budget = iterations or first_pass_iterations(n * (num_edges if d == 3 else 2) + 1)
+    budget = iterations or first_pass_iterations(_lp_columns(n, d, num_edges, contact))
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
-               length=length, total=steps, monitor=monitor, iterations=budget)
-    mu = jnp.asarray(mu, dtype)
+               length=length, total=steps, monitor=monitor, iterations=budget, contact=contact)
+    mu = (jnp.asarray(mu, dtype), jnp.asarray(torsion, dtype))
     values, qualities = [], []
     segments = range(0, steps, length)
     bar = None

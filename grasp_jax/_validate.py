@@ -32,8 +32,8 @@ def _as_float_array(name: str, x):
     return arr
 
 
-def check_scalar(name: str, value, *, positive: bool = True):
-    """A finite (positive) real scalar; tracers pass through unchecked."""
+def check_scalar(name: str, value, *, positive: bool = True, minimum: float | None = None):
+    """A finite (positive, or at least ``minimum``) real scalar; tracers pass through unchecked."""
     if is_traced(value):
         return value
     try:
@@ -44,6 +44,8 @@ def check_scalar(name: str, value, *, positive: bool = True):
         raise ValueError(f"{name} must be a real scalar; got {value!r}")
     if not math.isfinite(v) or (positive and v <= 0):
         raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}; got {value!r}")
+    if minimum is not None and v < minimum:
+        raise ValueError(f"{name} must be a finite number >= {minimum:g}; got {value!r}")
     return v
 
 

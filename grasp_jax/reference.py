@@ -49,37 +49,48 @@ def _cross(a, b):
     return a[0] * b[1] - a[1] * b[0] if len(a) == 2 else np.cross(a, b)
 
 
-def wrenches(points, normals, mu, num_edges, origin=None, torque_scale=1.0, tangents=None) -> np.ndarray:
-    """``(n*m, D)`` primitive wrenches ``(v, (c - o) x v / torque_scale)`` of one grasp."""
+def wrenches(points, normals, mu, num_edges, origin=None, torque_scale=1.0, tangents=None, contact="hard",
+             torsion=0.0) -> np.ndarray:
+    """``(K, D)`` primitive wrenches ``(v, (c - o) x v / torque_scale)`` of one grasp.
+
+    ``contact="soft"``: each edge twice, its torque ``+/- torsion z`` apart (``z`` the inward
+    normal, ``K = 2 n m``); ``"dexnet-soft"``: the hard wrenches and ``(0, +/- torsion n)`` per
+    contact (``K = n m + 2 n``), moments divided by ``torque_scale`` as torques are."""
     points = np.asarray(points, float)
     origin = np.zeros(points.shape[1]) if origin is None else np.asarray(origin, float)
     edges = cone_edges(normals, mu, num_edges, tangents)
     rows = []
-    for c, cone in zip(points, edges):
+    for c, nrm, cone in zip(points, np.asarray(normals, float), edges):
+        unit = nrm / np.linalg.norm(nrm)
         for v in cone:
-            rows.append(np.concatenate([v, np.atleast_1d(_cross(c - origin, v)) / torque_scale]))
+            torque = np.atleast_1d(_cross(c - origin, v))
+            if contact == "soft":
+                for sign in (1.0, -1.0):
+                    rows.append(np.concatenate([v, (torque - sign * torsion * unit) / torque_scale]))
+            else:
+                rows.append(np.concatenate([v, torque / torque_scale]))
+    if contact == "dexnet-soft":
+        for nrm in np.asarray(normals, float):
+            unit = nrm / np.linalg.norm(nrm)
+            for sign in (1.0, -1.0):
+                rows.append(np.concatenate([np.zeros(len(unit)), sign * torsion * unit / torque_scale]))
     return np.array(rows)
 
 
-def quality_highs(points, normals, mu, num_edges=8, tangents=None) -> tuple[float, bool]:
+def quality_highs(points, normals, mu, num_edges=8, tangents=None, contact="hard", torsion=0.0) -> tuple[float, bool]:
     """``(Q, equilibrium)`` from HiGHS on ``max delta s.t. A [a; delta] = 0, sum a = 1, a, delta >= 0``
-    (the normalized eq. 17-20). ``Q = 0`` and ``equilibrium = False`` where infeasible or ``delta* = 0``."""
+    (the normalized eq. 17-20) over the wrenches of :func:`wrenches` about ``c_1``. ``Q = 0`` and
+    ``equilibrium = False`` where infeasible or ``delta* = 0``."""
     points = np.asarray(points, float)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    n, m, d = edges.shape
-    c1 = points[0]
+    d = points.shape[1]
     z1 = -np.asarray(normals[0], float) / np.linalg.norm(normals[0])
-    cols = []
-    for i in range(n):
-        for j in range(m):
-            v = edges[i, j]
-            cols.append(np.concatenate([v, np.atleast_1d(_cross(points[i] - c1, v))]))
-    A = np.array(cols).T
+    A = wrenches(points, normals, mu, num_edges, points[0], 1.0, tangents, contact, torsion).T
+    K = A.shape[1]
     A = np.concatenate([A, np.concatenate([z1, np.zeros(A.shape[0] - d)])[:, None]], axis=1)
-    A_eq = np.vstack([A, np.concatenate([np.ones(n * m), [0.0]])])
+    A_eq = np.vstack([A, np.concatenate([np.ones(K), [0.0]])])
     b_eq = np.zeros(A_eq.shape[0])
     b_eq[-1] = 1.0
-    c = np.zeros(n * m + 1)
+    c = np.zeros(K + 1)
     c[-1] = -1.0
     res = linprog(c, A_eq=A_eq, b_eq=b_eq, bounds=(0, None), method="highs")
     if res.status != 0:
@@ -88,10 +99,11 @@ def quality_highs(points, normals, mu, num_edges=8, tangents=None) -> tuple[floa
     return (q, True) if q > 0 else (0.0, False)
 
 
-def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale=1.0, tangents=None) -> float:
-    """``l*`` of ``max l s.t. W alpha = 0, sum alpha = 1, alpha >= l`` with HiGHS; 0 when the
-    wrenches are rank deficient, ``-inf`` when infeasible."""
-    W = wrenches(points, normals, mu, num_edges, origin, torque_scale, tangents).T
+def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale=1.0, tangents=None,
+                     contact="hard", torsion=0.0) -> float:
+    """``l*`` of ``max l s.t. W alpha = 0, sum alpha = 1, alpha >= l`` with HiGHS on the wrenches
+    of :func:`wrenches`; 0 when they are rank deficient, ``-inf`` when infeasible."""
+    W = wrenches(points, normals, mu, num_edges, origin, torque_scale, tangents, contact, torsion).T
     D, K = W.shape
     if np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, np.abs(W).max())) < D:
         return 0.0
@@ -108,11 +120,15 @@ def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale
     return float(-res.fun)
 
 
-def torque_span_highs(points, normals, mu, num_edges=8, tangents=None) -> bool:
-    """Whether the torques about ``c_1`` of contacts 2..n positively span the torque space."""
+def torque_span_highs(points, normals, mu, num_edges=8, tangents=None, contact="hard", torsion=0.0) -> bool:
+    """Whether the torques about ``c_1`` of the wrenches (:func:`wrenches`) positively span the
+    torque space (zero torques, contact 1's hard edges, take no part)."""
     points = np.asarray(points, float)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    taus = np.array([np.atleast_1d(_cross(points[i] - points[0], v)) for i in range(1, len(points)) for v in edges[i]])
+    d = points.shape[1]
+    taus = wrenches(points, normals, mu, num_edges, points[0], 1.0, tangents, contact, torsion)[:, d:]
+    taus = taus[np.abs(taus).max(axis=1) > 0]
+    if len(taus) == 0:
+        return False
     scale = np.abs(taus).max()
     if scale == 0:
         return False

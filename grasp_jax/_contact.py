@@ -1,0 +1,132 @@
+"""Contact models: the primitive wrenches a contact transmits, for **one** grasp.
+
+Every metric reads the columns built here (the quality and torque LPs of ``_closure``, the
+min-weight margin, the optimizer's objectives, the qhull baseline through ``reference``), so a
+contact model is defined once.
+
+``"hard"`` (point contact with friction, the paper's)
+    The ``m`` cone edges ``v_ij`` of contact ``i`` (``_cones.cone_edges``) as wrenches
+    ``(v_ij, c_i x v_ij)`` (eq. 6). Two hard contacts in 3D are never force-closure: no
+    combination of them resists a torque about the line joining them.
+``"soft"`` (soft finger, coupled linearization)
+    Besides its friction cone, a soft finger resists a moment about its normal bounded by the
+    normal force times ``torsion`` (a length): ``|m_n| <= torsion * f_n``. Each edge (whose normal
+    component is 1) gives two wrenches ``(v_ij, c_i x v_ij +/- torsion z_i)``, ``z_i = -normal_i``:
+    their cone is exactly the pyramid times ``[-torsion f_n, torsion f_n]``, so no moment is
+    available without normal force. For a circular patch of radius ``r`` under uniform pressure
+    the bound is ``torsion = (2/3) mu r`` (:func:`patch_torsion`; the integral of ``mu p rho`` over
+    the disc over the normal force ``p pi r^2``).
+``"dexnet-soft"`` (Dex-Net's soft fingers)
+    Dex-Net's ``PointGraspMetrics3D.grasp_matrix(..., soft_fingers=True)``: the hard columns plus
+    two pure-moment columns ``(0, +/- torsion normal_i)`` per contact, not tied to the normal force
+    (Dex-Net: ``torsion = pi r^2 mu``, :func:`dexnet_torsion`, ``r`` its ``finger_radius``).
+    Torques and these columns are scaled alike (Dex-Net's ``torque_scaling``). Offered to
+    reproduce Dex-Net and GraspNet-1Billion labels; it lets a grasp resist a moment with no
+    normal force, which no physical contact does.
+
+Soft contacts are 3D only: a planar contact's moment about its normal is about an axis in the
+plane, outside the planar wrench space ``(f_x, f_y, tau_z)``, so in 2D a soft finger is a hard one.
+
+Proposition 2 with soft contacts (derived in the README, "Soft contacts"): the grasp is
+force-closure iff (1) the quality LP over all columns has ``delta* > 0`` and (2) the torques about
+``c_1`` of all columns positively span R^3, contact 1's torsion columns included (hard contacts:
+its columns have no torque about ``c_1`` and are left out, :attr:`Columns.fixed`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from ._cones import safe_normalize
+from ._wrench import cross
+
+#: Contact models, in the order of the module docstring.
+CONTACTS: tuple[str, ...] = ("hard", "soft", "dexnet-soft")
+
+
+def patch_torsion(radius, mu):
+    """Torsional coefficient ``(2/3) mu r`` (a length) of a circular contact patch of radius ``r``
+    under uniform pressure: the largest moment about the normal per unit normal force. For
+    ``contact="soft"``."""
+    return 2.0 / 3.0 * mu * radius
+
+
+def dexnet_torsion(finger_radius, mu):
+    """Dex-Net's soft-finger column magnitude ``pi r^2 mu`` (``PointGraspMetrics3D.grasp_matrix``;
+    the default ``finger_radius`` of its ``grasp_matrix`` is 0.005 m). For ``contact="dexnet-soft"``."""
+    return jnp.pi * finger_radius**2 * mu
+
+
+def columns_per_contact(contact: str, num_edges: int) -> int:
+    """Wrench columns one contact contributes (3D): ``m``, ``2 m`` (soft) or ``m + 2`` (Dex-Net)."""
+    return {"hard": num_edges, "soft": 2 * num_edges, "dexnet-soft": num_edges + 2}[contact]
+
+
+@dataclasses.dataclass(frozen=True)
+class Columns:
+    """The primitive wrenches of one grasp as LP columns.
+
+    Attributes:
+        force: ``(K, d)`` forces.
+        torque: ``(K, t)`` torques (``t = 1`` in 2D, 3 in 3D) about the chosen point, scaled.
+        fixed: the leading columns whose torque about ``c_1`` is zero by construction (contact 1's
+            edges of a hard or Dex-Net contact; 0 for soft fingers), left out of the torque test.
+    """
+
+    force: jax.Array
+    torque: jax.Array
+    fixed: int
+
+    @property
+    def wrenches(self) -> jax.Array:
+        """``(K, d + t)`` wrenches ``(force, torque)``."""
+        return jnp.concatenate([self.force, self.torque], axis=-1)
+
+
+def columns(edges: jax.Array, torque: jax.Array, normals: jax.Array, contact: str, torsion, scale=None) -> Columns:
+    """The wrench columns of a contact model from the hard columns of one grasp.
+
+    Args:
+        edges: ``(n, m, d)`` cone edges; torque: ``(n, m, t)`` their torques (already scaled).
+        normals: ``(n, d)`` outward unit normals.
+        contact: one of :data:`CONTACTS`.
+        torsion: soft-finger coefficient (a length, scalar); unused for ``"hard"``.
+        scale: the length ``torque`` was divided by (``None``: 1); torsion moments are divided by it
+            too.
+
+    Returns:
+        :class:`Columns`, ordered by contact (hard: contact ``i``'s ``m`` edges; soft: its ``m``
+        edges with ``+torsion``, then with ``-torsion``; Dex-Net: all hard columns, then the two
+        moment columns of each contact).
+    """
+    n, m, d = edges.shape
+    t = torque.shape[-1]
+    if contact == "hard" or d == 2:
+        return Columns(edges.reshape(n * m, d), torque.reshape(n * m, t), m)
+    moment = torsion * normals if scale is None else torsion * normals / scale  # (n, 3)
+    if contact == "soft":
+        # Edges have unit normal component, so each column carries torsion z_i per unit normal force.
+        force = jnp.broadcast_to(edges[:, None], (n, 2, m, d)).reshape(2 * n * m, d)
+        signed = jnp.stack([torque - moment[:, None, :], torque + moment[:, None, :]], axis=1)  # z = -normal
+        return Columns(force, signed.reshape(2 * n * m, t), 0)
+    if contact == "dexnet-soft":
+        pure = jnp.stack([moment, -moment], axis=1).reshape(2 * n, t)
+        force = jnp.concatenate([edges.reshape(n * m, d), jnp.zeros((2 * n, d), edges.dtype)])
+        return Columns(force, jnp.concatenate([torque.reshape(n * m, t), pure]), m)
+    raise ValueError(f"contact must be one of {CONTACTS}; got {contact!r}")
+
+
+def wrench_columns(points, normals, edges, contact: str, torsion, origin=None, torque_scale=None) -> Columns:
+    """:func:`columns` with torques about ``origin`` (default the frame origin) divided by
+    ``torque_scale`` (default 1): the classical wrench set of the min-weight margin and the
+    Ferrari-Canny baseline."""
+    arm = points if origin is None else points - origin
+    torque = cross(arm[:, None, :], edges)
+    if points.shape[-1] == 2:
+        torque = torque[..., None]
+    if torque_scale is not None:
+        torque = torque / torque_scale
+    return columns(edges, torque, safe_normalize(normals), contact, torsion, torque_scale)
