@@ -205,8 +205,8 @@ def _exact_torque_2d(tau: jax.Array):
 
 #: A certified torque LP margin ``|l*|`` at most this (float32 rounding leaves ~1e-8 on exact zeros)
 #: means the torques lie in the closed half-space ``u . tau >= 0`` of its dual direction ``u`` and
-#: some on its boundary plane. (``l* < 0``: all of them strictly inside, which forces
-#: ``delta* = -1`` robustly; nothing to reduce.)
+#: some on its boundary plane. (``l* < -HALF_SPACE``: all of them strictly inside an open
+#: half-space, which forces ``delta* = -1`` exactly, :func:`_open_half_space`.)
 HALF_SPACE = 1e-7
 #: Columns with ``u . tau_j`` above this fraction of ``max |tau_j|`` are off the plane ``u . tau = 0``
 #: (exactly: the torques of a box grasp's contacts on one face; the others are ~1e-8).
@@ -252,6 +252,19 @@ def _original_dual(y: jax.Array, R: jax.Array) -> jax.Array:
     prices them reaches 1e4 where ``u . tau_j`` is small, and the envelope value ``c.x -
     y.(A x - b)`` then carried 1e-4 of the kept columns' rounding.)"""
     return jnp.concatenate([y[:3], R.T @ y[3:6].at[0].set(0.0), y[6:]])
+
+
+def _open_half_space(t_polished) -> jax.Array:
+    """float32: whether the torque LP's certified vertex proves ``l* < -HALF_SPACE``, i.e. every
+    torque about ``c_1`` strictly inside an open half-space ``u . tau > 0``. Then no combination
+    of the other contacts' columns has zero torque, only contact 1's edges balance, and
+    ``delta* = -1`` exactly, whatever the quality LP's float32 solve says: on such a grasp a few
+    roundoffs in the data make the torques span (the torque margin -2.3e-7 of one cylinder-side
+    grasp, where float32's certified quality vertex read ``delta = 0.158``; in float64 moving the
+    inputs by 1e-8 flips its ``Q`` between 0 and 0.135). ``t_polished``: :func:`polish`'s triple."""
+    sol, certified, _ = t_polished
+    K = sol.x.shape[0] - 1
+    return certified & (1.0 / K - sol.x[-1] < -HALF_SPACE)
 
 
 def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivots: tuple, full):
@@ -335,7 +348,8 @@ def _pivots(tol, full) -> jax.Array | int:
     return jnp.where(full, tol.crossover, tol.crossover_short)
 
 
-def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tuple[jax.Array, jax.Array, jax.Array]:
+def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None, forced=False
+                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(delta, status, dual)`` from a solve of :func:`quality_lp`: the value with envelope
     derivatives, its status, and the dual vector behind it (for the certificate).
 
@@ -345,7 +359,8 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tu
     the crossover's last basis bounds ``delta* < 0`` by weak duality (:func:`quality_bound`): status
     ``BOUNDED``, ``delta`` is that bound, ``Q = 0`` exactly. (Seen in float32: an ill-posed LP
     accepted at ``delta = 4e-4`` whose ``delta*`` is -1.) ``polished``: :func:`polish`'s result
-    where the caller already has it.
+    where the caller already has it. ``forced``: where ``delta* = -1`` is known
+    (:func:`_open_half_space`), the value is that, ``OPTIMAL``, whatever the solve found.
     """
     tol = tolerances(q_lp.A.dtype)
     full = _full_budget(q_lp, iterations)
@@ -377,6 +392,8 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None) -> tu
     # After a short budget, a value that no vertex certifies waits for the full budget.
     status = jnp.where(suspect & ~bounded & ~full, Status.NOT_CONVERGED, status).astype(jnp.int8)
     delta = jnp.where(status == Status.NOT_CONVERGED, 0.0, delta)
+    delta = jnp.where(forced, -1.0, delta)
+    status = jnp.where(forced, Status.OPTIMAL, status).astype(jnp.int8)
     return delta, status, jnp.where(bounded, y_bound, q_sol.y)
 
 
@@ -420,9 +437,11 @@ def evaluate_one(
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
         t_full = _full_budget(t_lp, iterations)
-        q_polished, (t_sol, _, _) = _polish_exact(
+        q_polished, t_polished = _polish_exact(
             q_lp, t_lp, q_sol, t_sol, (_pivots(tol, _full_budget(q_lp, iterations)), _pivots(tol, t_full)), t_full
         )
+        t_sol = t_polished[0]
+        forced = _open_half_space(t_polished)
         full, null = _gram_rank3(tau)
         t_margin = _min_weight_margin(tau, t_sol)
         # Unfinished after the full budget: the dual of the best iterate may still prove that the
@@ -438,7 +457,7 @@ def evaluate_one(
         t_margin = jnp.where(full, t_margin, 0.0)
     else:
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
-        q_polished = None
+        q_polished, forced = None, False
         if d == 2:
             torque_span, t_margin, t_cert = _exact_torque_2d(tau)
             if torque_test == "paper":
@@ -455,7 +474,7 @@ def evaluate_one(
 
     # Unfinished after the full budget (in float32 about 1 quality LP in 1,000 random grasps): the
     # dual of its best iterate may still prove delta* < 0, i.e. no equilibrium, Q = 0 exactly.
-    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, q_polished)
+    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, q_polished, forced)
     q_ok = q_status == Status.OPTIMAL
     bounded = q_status == Status.BOUNDED
     equilibrium = q_ok & (delta > tol.margin)
@@ -497,7 +516,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     lp = quality_lp(cols, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
     tol = tolerances(points.dtype)
-    polished = None
+    polished, forced = None, False
     if tol.crossover and points.shape[-1] == 3:
         # float32: the half-space round of evaluate (``_polish_exact``) needs the torque LP's
         # vertex; the crossover finds it from nothing (no interior-point loop for it here), with
@@ -509,8 +528,9 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
                              jnp.asarray(Status.NOT_CONVERGED, jnp.int8), jnp.zeros((), jnp.int32), zero)
         full = _full_budget(lp, iterations)
         t_pivots = tol.crossover if full is True else jnp.where(full, tol.crossover, 0)
-        polished, _ = _polish_exact(lp, t_lp, sol, nothing, (_pivots(tol, full), t_pivots), full)
-    delta, status, _ = _quality_value(lp, sol, iterations, polished)
+        polished, t_polished = _polish_exact(lp, t_lp, sol, nothing, (_pivots(tol, full), t_pivots), full)
+        forced = _open_half_space(t_polished)
+    delta, status, _ = _quality_value(lp, sol, iterations, polished, forced)
     ok = status == Status.OPTIMAL
     if signed:
         value = jnp.where(ok | (status == Status.BOUNDED), delta, 0.0)
