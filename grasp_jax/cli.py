@@ -154,6 +154,7 @@ def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
     g.add_argument("--torque-test", choices=("exact", "paper"), default=None if from_file else "exact",
                    help="'exact' positive-spanning test (correct), or the paper's eq. (15) (only "
                         "necessary in 3D)" + dflt("exact"))
+    _add_contact(g, dflt("hard"))
     g.add_argument("--epsilon", action="store_true",
                    help="also compute the Ferrari-Canny epsilon and hull volume with qhull (slow: "
                         "5-30 ms per grasp)")
@@ -175,6 +176,55 @@ def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
                         "process scores its slice and writes FILE.<i>-of-<P>.<suffix>")
     o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
     o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+
+
+def _add_contact(g, default_note: str = "") -> None:
+    g.add_argument("--contact", choices=("hard", "soft", "dexnet-soft"), default=None,
+                   help="contact model: 'hard' point contacts with friction (the paper's), 'soft' fingers "
+                        "(a moment about the normal up to TORSION x the normal force; two soft contacts can "
+                        "hold a grasp), or 'dexnet-soft' (Dex-Net's soft-finger columns, to reproduce its "
+                        "labels); 3D only" + (default_note or " (default: hard)"))
+    g.add_argument("--torsion", type=_nonnegative_float, default=None, metavar="L",
+                   help="torsional coefficient of soft contacts, a length in the object's units ('soft': "
+                        "the largest moment per unit normal force; 'dexnet-soft': Dex-Net's pi r^2 mu)")
+    g.add_argument("--patch-radius", type=_positive_float, default=None, metavar="R",
+                   help="instead of --torsion: the contact patch radius, torsion = (2/3) mu R ('soft', a "
+                        "uniformly pressed disc) or pi R^2 mu ('dexnet-soft', R its finger_radius)")
+
+
+def _contact_settings(args, mu, meta: dict | None = None) -> tuple[str | None, float | None]:
+    """``(contact, torsion)`` from --contact, --torsion and --patch-radius (``None``: the file's
+    metadata, else hard contacts, where ``meta`` is given)."""
+    from ._contact import dexnet_torsion, patch_torsion
+
+    contact = args.contact
+    if args.torsion is not None and args.patch_radius is not None:
+        raise ValueError("give --torsion or --patch-radius, not both")
+    if contact is None and (args.torsion is not None or args.patch_radius is not None):
+        raise ValueError("--torsion and --patch-radius set the torsion of soft contacts: add --contact soft "
+                         "(or dexnet-soft)")
+    if contact is None:
+        if meta is None or "contact" not in meta:
+            return (None if meta is not None else "hard"), None
+        return meta["contact"], meta.get("torsion")
+    if contact == "hard":
+        return contact, None
+    if args.patch_radius is not None:
+        helper = patch_torsion if contact == "soft" else dexnet_torsion
+        return contact, float(helper(args.patch_radius, mu))
+    if args.torsion is None:
+        raise ValueError(f"--contact {contact} needs --torsion L or --patch-radius R")
+    return contact, args.torsion
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0; got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0; got {text!r}")
+    return value
 
 
 def _add_sampling(p: argparse.ArgumentParser, *, num: int) -> None:
@@ -244,6 +294,7 @@ def _add_optimize(sub, builtins: str) -> None:
                    help=f"friction coefficient (default: the --from file's, else {DEFAULT_MU})")
     s.add_argument("--edges", type=_int(3, "an integer >= 3"), default=None,
                    help="edges of each linearized 3D friction cone (default: the --from file's, else 8)")
+    _add_contact(s, " (default: the --from file's, else hard)")
     o = p.add_argument_group("output and performance")
     o.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write every start's final grasp, scores, objective history and end reason to FILE "
@@ -471,6 +522,7 @@ def _cmd_sample(args) -> int:
     if args.out is not None:
         storage.check_output_path(args.out)
     _check_plot_path(args.plot)
+    contact, torsion = _contact_settings(args, args.mu)
     _setup(args)
     obj = _load_object(args.object, args.hole)
     summary = pipeline.run(
@@ -478,7 +530,7 @@ def _cmd_sample(args) -> int:
         torque_test=args.torque_test, chunk=args.chunk, epsilon=args.epsilon, origin=args.origin,
         torque_scale=args.torque_scale, out=args.out, progress=not args.quiet, top=max(args.top, 5),
         distributed=args.distributed, object_spec=args.object, first_contact=args.first_contact,
-        object_holes=args.hole,
+        object_holes=args.hole, contact=contact, torsion=torsion,
     )
     _report(args, summary, best_lines=5)
     _plot_summary(args, obj, summary, args.mu, args.edges)
@@ -512,10 +564,11 @@ def _cmd_score(args) -> int:
         if spec is None:
             raise ValueError("the file names no object: pass --object (needed for --epsilon and --plot)")
         obj = _load_object(spec, _holes(args, meta))
+    contact, torsion = _contact_settings(args, args.mu if args.mu is not None else meta.get("mu", DEFAULT_MU), {})
     summary = pipeline.score_file(
         args.file, mu=args.mu, num_edges=args.edges, torque_test=args.torque_test, chunk=args.chunk,
         epsilon=args.epsilon, origin=args.origin, torque_scale=args.torque_scale, obj=obj, out=args.out,
-        progress=not args.quiet, top=max(args.top, 5),
+        progress=not args.quiet, top=max(args.top, 5), contact=contact, torsion=torsion,
     )
     _report(args, summary, best_lines=5)
     if obj is not None:
@@ -592,6 +645,9 @@ def _cmd_optimize(args) -> int:
     fingers = args.fingers if args.fingers is not None else (src.fingers if src is not None else 4)
     mu = args.mu if args.mu is not None else float(meta_in.get("mu", DEFAULT_MU))
     edges = args.edges if args.edges is not None else int(meta_in.get("edges", 8))
+    contact, torsion = _contact_settings(args, mu, meta_in)
+    contact = contact or "hard"
+    args.contact_model = (contact, torsion)
     _setup(args)
     stored = meta_in.get("object")
     same = stored is not None and _same_object(args.object, stored, meta_in)
@@ -616,6 +672,7 @@ def _cmd_optimize(args) -> int:
         seed=int(args.seed),
         num=int(starts),
         torque_test="exact",
+        **({"contact": contact} if contact == "hard" else {"contact": contact, "torsion": float(torsion)}),
         objective=args.objective,
         steps=int(args.steps),
         learning_rate=float(result.learning_rate),
@@ -647,7 +704,8 @@ def _optimize(args, obj, *, fingers, starts, mu, edges, init):
             warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
             return gj.optimize(obj, args.seed, fingers=fingers, mu=mu, starts=starts, steps=args.steps,
                                num_edges=edges, objective=args.objective, learning_rate=args.lr,
-                               normals=args.normals, init=init, progress=not args.quiet)
+                               normals=args.normals, init=init, progress=not args.quiet,
+                               contact=args.contact_model[0], torsion=args.contact_model[1])
     except (TypeError, NotImplementedError) as e:  # an object kind the optimizer cannot move contacts on
         raise ValueError(f"cannot optimize grasps of {obj.name!r}: {e}") from None
 
@@ -705,7 +763,8 @@ def _sampled_quality(args, obj, fingers, mu, edges, starts):
     points, normals = sampling.sample_grasps(obj, num, fingers, seed=args.seed)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-        res = gj.evaluate(points, normals, mu=mu, num_edges=edges)
+        contact, torsion = getattr(args, "contact_model", ("hard", None))
+        res = gj.evaluate(points, normals, mu=mu, num_edges=edges, contact=contact, torsion=torsion)
     return np.where(np.asarray(res.force_closure), np.asarray(res.quality, float), 0.0)
 
 

@@ -136,13 +136,16 @@ def score_stream(
     top: int = DEFAULT_TOP,
     desc: str = "scoring",
     index_offset: int = 0,
+    contact: str = "hard",
+    torsion: float | None = None,
 ) -> PipelineSummary:
     """Score a stream of chunks ``{"points", "normals"[, "force_closure"]}`` and write the results.
 
     The engine behind :func:`run` and :func:`score_file`; see there. ``num`` is the number of
     grasps the stream holds (for the progress bar); a stored ``force_closure`` in the chunks is
     compared with the new verdicts (``agree``). ``index_offset`` is added to the indices of the
-    best grasps (the start of this process's slice).
+    best grasps (the start of this process's slice). ``contact``, ``torsion``: the contact model,
+    as :func:`grasp_jax.evaluate`.
     """
     import jax
 
@@ -189,7 +192,7 @@ def score_stream(
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
                 res = gj.evaluate(_pad(points, pad_to), _pad(normals, pad_to), mu=mu, num_edges=num_edges,
-                                  torque_test=torque_test)
+                                  torque_test=torque_test, contact=contact, torsion=torsion)
             fc = np.asarray(res.force_closure)[:rows]
             q = np.asarray(res.quality)[:rows]
             conv = np.asarray(res.converged)[:rows]
@@ -201,7 +204,7 @@ def score_stream(
                 for s in range(0, rows, step):
                     eps[s:s + step], vol[s:s + step] = gj.ferrari_canny(
                         points[s:s + step], normals[s:s + step], mu=mu, num_edges=num_edges, origin=origin,
-                        torque_scale=torque_scale)
+                        torque_scale=torque_scale, contact=contact, torsion=torsion)
                     if bar is not None:
                         bar.update(min(step, rows - s))
                 batch.update(epsilon=eps, volume=vol)
@@ -292,6 +295,20 @@ def _check_settings(mu, num_edges, torque_test, chunk, top):
         raise ValueError(f"top must be an integer >= 0; got {top!r}")
 
 
+def _check_contact(contact, torsion, dim: int) -> tuple[str, float | None]:
+    """``(contact, torsion)`` validated (``grasp_jax._api.check_contact``); torsion ``None`` for
+    hard contacts, as :func:`grasp_jax.evaluate` takes it."""
+    from ._api import check_contact
+
+    contact, value = check_contact(contact, torsion, dim)
+    return contact, (None if contact == "hard" else float(value))
+
+
+def _contact_metadata(contact: str, torsion) -> dict:
+    """The contact model in a result file's metadata: ``contact``, and ``torsion`` where soft."""
+    return {"contact": contact} if contact == "hard" else {"contact": contact, "torsion": float(torsion)}
+
+
 def _slice_chunks(chunks: Iterator, start: int, stop: int, size: int | None = None) -> Iterator[dict]:
     """Rows ``[start, stop)`` of a stream of ``(points, normals)`` chunks, re-cut into chunks of
     ``size`` rows (the last may be shorter; default: as they come)."""
@@ -337,6 +354,8 @@ def run(
     distributed: bool = False,
     object_spec: str | None = None,
     object_holes=None,
+    contact: str = "hard",
+    torsion: float | None = None,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
@@ -344,7 +363,8 @@ def run(
         obj: an object of :mod:`grasp_jax.objects` (``grasp_jax.objects.load("glass")``).
         num: grasps to sample and score (any size: memory does not grow with it).
         fingers: contacts per grasp (>= 2).
-        mu, num_edges, torque_test: as :func:`grasp_jax.evaluate`.
+        mu, num_edges, torque_test, contact, torsion: as :func:`grasp_jax.evaluate` (stored in the
+            file's metadata).
         seed, scheme, first_contact: as :func:`grasp_jax.sampling.sample_grasps`. The results do
             not depend on ``chunk`` or on the number of devices.
         chunk: grasps sampled, scored and written together (default :func:`default_chunk`).
@@ -376,6 +396,7 @@ def run(
         raise ValueError(f"fingers must be an integer >= 2; got {fingers!r}")
     chunk = default_chunk() if chunk is None else chunk
     _check_settings(mu, num_edges, torque_test, chunk, top)
+    contact, torsion = _check_contact(contact, torsion, int(obj.dim))
     num, fingers, chunk = int(num), int(fingers), int(chunk)
     index, count = 0, 1
     if distributed:
@@ -402,6 +423,7 @@ def run(
         num=stop - start,
         torque_test=torque_test,
         first_contact=None if first_contact is None else int(first_contact),
+        **_contact_metadata(contact, torsion),
     )
     if object_holes:
         meta["object_holes"] = [storage.object_spec(obj, h) for h in object_holes]
@@ -415,7 +437,7 @@ def run(
             chunks, num=stop - start, fingers=fingers, dim=int(obj.dim), mu=mu, num_edges=num_edges,
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
-            top=top, desc=f"{obj.name} x{fingers}", index_offset=start,
+            top=top, desc=f"{obj.name} x{fingers}", index_offset=start, contact=contact, torsion=torsion,
         )
     finally:
         chunks.close()
@@ -435,11 +457,13 @@ def score_file(
     out=None,
     progress: bool = False,
     top: int = DEFAULT_TOP,
+    contact: str | None = None,
+    torsion: float | None = None,
 ) -> PipelineSummary:
     """Score the grasps stored in a ``.npz`` / ``.parquet`` file (``points``, ``normals``).
 
-    ``mu``, ``num_edges`` and ``torque_test`` default to the file's metadata, else to
-    :data:`DEFAULT_MU`, 8 and ``"exact"``. For ``epsilon``, ``origin`` and ``torque_scale``
+    ``mu``, ``num_edges``, ``torque_test`` and the contact model (``contact``, ``torsion``) default
+    to the file's metadata, else to :data:`DEFAULT_MU`, 8, ``"exact"`` and hard contacts. For ``epsilon``, ``origin`` and ``torque_scale``
     default to ``obj.center`` and ``obj.radius`` when an object is given; one of the two is
     required. If the file has a ``force_closure`` column the summary counts how many verdicts
     agree. Other arguments as :func:`run`.
@@ -451,8 +475,12 @@ def score_file(
     mu = stored.get("mu", DEFAULT_MU) if mu is None else mu
     num_edges = stored.get("edges", 8) if num_edges is None else num_edges
     torque_test = stored.get("torque_test", "exact") if torque_test is None else torque_test
+    if contact is None:
+        contact = stored.get("contact", "hard")
+        torsion = stored.get("torsion") if torsion is None else torsion
     chunk = default_chunk() if chunk is None else chunk
     _check_settings(mu, num_edges, torque_test, chunk, top)
+    contact, torsion = _check_contact(contact, torsion, src.dim)
     if out is not None:
         out = storage.check_output_path(out)
     if epsilon:
@@ -467,7 +495,7 @@ def score_file(
         torque_scale = float(torque_scale)
         if not (math.isfinite(torque_scale) and torque_scale > 0):
             raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
-    meta = {k: v for k, v in stored.items() if k not in ("epsilon_origin", "epsilon_torque_scale")}
+    meta = {k: v for k, v in stored.items() if k not in ("epsilon_origin", "epsilon_torque_scale", "torsion")}
     meta.update(storage.metadata(
         source=str(Path(path).resolve()),
         dim=src.dim,
@@ -476,6 +504,7 @@ def score_file(
         edges=int(num_edges),
         torque_test=torque_test,
         num=src.num,
+        **_contact_metadata(contact, torsion),
     ))
     if obj is not None:
         meta.setdefault("object", str(obj.name))
@@ -487,7 +516,7 @@ def score_file(
             chunks, num=src.num, fingers=src.fingers, dim=src.dim, mu=mu, num_edges=int(num_edges),
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
-            top=top, desc=Path(path).name,
+            top=top, desc=Path(path).name, contact=contact, torsion=torsion,
         )
     finally:
         chunks.close()

@@ -21,6 +21,14 @@ HISTOGRAM_BINS = 1 << 16
 PERCENTILES = (5, 25, 50, 75, 95)
 
 
+
+def contact_text(meta) -> str:
+    """``", soft contacts (torsion 0.002)"`` for a file's soft contact model, ``""`` for hard."""
+    contact = meta.get("contact", "hard")
+    if contact == "hard":
+        return ""
+    return f", {contact} contacts (torsion {meta.get('torsion'):.4g})"
+
 class _QualityHistogram:
     """Counts of Q on ``[0, upper]`` in :data:`HISTOGRAM_BINS` bins; percentiles by interpolation."""
 
@@ -179,7 +187,7 @@ class PipelineSummary:
         what = m.get("object_name") or m.get("object") or m.get("source", "grasps")
         lines.append(
             f"object         {what} ({m.get('dim', '?')}D), {m.get('fingers', '?')} fingers, "
-            f"mu {m.get('mu')}, {m.get('edges')} cone edges, torque test {m.get('torque_test')}"
+            f"mu {m.get('mu')}, {m.get('edges')} cone edges, torque test {m.get('torque_test')}{contact_text(m)}"
         )
         if "slice" in m:
             s = m["slice"]
@@ -328,7 +336,7 @@ def format_optimize(summary: dict, best: int = 5) -> str:
     what = m.get("object_name") or m.get("object", "?")
     lines = [
         f"object         {what} ({m.get('dim', '?')}D), {m.get('fingers', '?')} fingers, mu {m.get('mu')}, "
-        f"{m.get('edges')} cone edges, objective {m.get('objective')}, {m.get('normals')} normals",
+        f"{m.get('edges')} cone edges{contact_text(m)}, objective {m.get('objective')}, {m.get('normals')} normals",
         f"optimized      {starts:,} starts x {steps:,} steps in {summary['seconds']:.1f} s: "
         f"{summary['start_steps_per_second']:,.0f} start-steps/s (incl. compile; lr {m.get('learning_rate')}, "
         f"starts {m.get('init', 'random')})",

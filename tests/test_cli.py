@@ -90,6 +90,20 @@ def test_score_round_trip_gives_the_same_verdicts(sampled, env):
     assert json.loads(out.stdout)["force_closure"] < a["force_closure"].sum()
 
 
+def test_soft_contacts_from_the_command_line(env, tmp_path):
+    """Two soft fingers hold grasps of a sphere (hard ones never do); score takes the contact model
+    from the file's metadata, and --contact hard on the same file finds no force-closure."""
+    grasp_jax("sample", "sphere", "--fingers", "2", "--num", NUM, "--contact", "soft", "--patch-radius", "0.01",
+              "--out", "soft.npz", "--quiet", env=env, cwd=tmp_path)
+    a, meta = storage.read_results(tmp_path / "soft.npz")
+    assert meta["contact"] == "soft" and meta["torsion"] == pytest.approx(2 / 3 * 0.364 * 0.01)
+    assert 0.02 < a["force_closure"].mean() < 0.5
+    out = grasp_jax("score", "soft.npz", "--json", env=env, cwd=tmp_path)
+    assert json.loads(out.stdout)["agree"] == 2000
+    out = grasp_jax("score", "soft.npz", "--contact", "hard", "--json", env=env, cwd=tmp_path)
+    assert json.loads(out.stdout)["force_closure"] == 0
+
+
 def test_score_a_plain_user_file(env, tmp_path):
     rng = np.random.default_rng(0)
     p = rng.normal(size=(300, 3, 2))
@@ -162,6 +176,11 @@ MISTAKES = [
     (["sample"], "OBJECT"),
     (["sample", "."], "is a directory"),
     (["sample", "shape.csv", "--hole", "missing.csv"], "missing.csv"),
+    (["sample", "sphere", "--contact", "soft"], "needs --torsion"),
+    (["sample", "sphere", "--torsion", "0.01"], "add --contact soft"),
+    (["sample", "sphere", "--contact", "soft", "--torsion", "-1"], "--torsion"),
+    (["sample", "sphere", "--contact", "soft", "--torsion", "0.1", "--patch-radius", "0.1"], "not both"),
+    (["sample", "quad", "--contact", "soft", "--torsion", "0.1"], "3D only"),
 ]
 
 
