@@ -277,8 +277,9 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
     its data move ``delta*`` by up to 4e-3 and the vertex the crossover reaches depends on the
     CPU's rounding order). Without a certified reduced vertex the quality LP stays uncertified.
     ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the crossover
-    then starts from nothing). ``full``: unused (kept for the callers). Returns :func:`polish`'s
-    triples.
+    then starts from nothing). ``full``: whether the quality LP had the full budget (may be
+    traced); then a full quality LP that round one does not certify runs again in round two, from
+    the interior point's dual alone. Returns :func:`polish`'s triples.
 
     Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
     ``|Q32 - Q64| > 1e-4`` were of this kind (Q32 up to 0.5 off); the reduced LP's vertex is
@@ -295,7 +296,7 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
     budget = jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
 
     def body(carry):
-        k, (lp, x, y), budget, best, need = carry
+        k, (lp, x, y), budget, best, half, need = carry
         (xq, yq, cq), (xt, yt, ct) = stacked((lp, t_lp), (x, t_sol.x), (y, t_sol.y), budget)
         first = k == 0
         # Round two keeps round one's torque vertex: that LP had no second pivot budget.
@@ -305,20 +306,27 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
         # ill-posed (a few roundoffs in its data move delta* by 1e-3) and the vertex found
         # depends on the CPU's rounding order (issue 27: 6e-5 to 1.7e-4 off under AVX-512, AVX2,
         # SSE4.2). Only the reduced LP's vertex is taken; without it the value stays uncertified.
-        half = ct & (jnp.abs(1.0 / K - xt[-1]) <= HALF_SPACE)  # l* ~ 0: on the boundary
+        half = jnp.where(first, ct & (jnp.abs(1.0 / K - xt[-1]) <= HALF_SPACE), half)  # l* ~ 0
+        # After the full budget, a full quality LP whose vertex round one did not certify runs
+        # again from the interior point's dual alone (x = 0): its primal iterate can lead the
+        # initial basis astray (issue 27, AVX: 64 pivots ended at delta = -1 uncertified, and the
+        # interior-point value, 1.8e-4 off, was reported; from y alone, 7 pivots certified Q).
+        retry = first & ~cq & ~half & full
         cq = jnp.where(first, cq & ~half, cq)
         take = first | cq
         xq = jnp.where(take, xq, best[0])
-        yq = jnp.where(first, yq, jnp.where(cq, _original_dual(yq, R), best[1]))
+        back = jnp.where(half, _original_dual(yq, R), yq)
+        yq = jnp.where(first, yq, jnp.where(cq, back, best[1]))
         cq = jnp.where(take, cq, best[2])
-        need = first & half
-        nothing = (jnp.zeros(N + 1, dt), jnp.zeros(r, dt))
+        need = first & (half | retry)
+        lp = jax.tree_util.tree_map(lambda a, b: jnp.where(half, a, b), reduced, wide)
+        start_y = jnp.where(half, 0.0, q_sol.y)
         again = jnp.asarray([REDUCED_PIVOTS, 0], jnp.int32)
-        return k + 1, (reduced, *nothing), again, (xq, yq, cq, xt, yt, ct), need
+        return k + 1, (lp, jnp.zeros(N + 1, dt), start_y), again, (xq, yq, cq, xt, yt, ct), half, need
 
     best = (start[1], start[2], jnp.zeros((), bool), t_sol.x, t_sol.y, jnp.zeros((), bool))
-    carry = (jnp.zeros((), jnp.int32), start, budget, best, jnp.ones((), bool))
-    _, _, _, (xq, yq, cq, xt, yt, ct), _ = jax.lax.while_loop(lambda c: c[-1], body, carry)
+    carry = (jnp.zeros((), jnp.int32), start, budget, best, jnp.zeros((), bool), jnp.ones((), bool))
+    _, _, _, (xq, yq, cq, xt, yt, ct), _, _ = jax.lax.while_loop(lambda c: c[-1], body, carry)
     return [as_solution(q_lp, q_sol, xq[:N], yq, cq), as_solution(t_lp, t_sol, xt, yt, ct)]
 
 
@@ -437,8 +445,9 @@ def evaluate_one(
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
         t_full = _full_budget(t_lp, iterations)
+        q_full = _full_budget(q_lp, iterations)
         q_polished, t_polished = _polish_exact(
-            q_lp, t_lp, q_sol, t_sol, (_pivots(tol, _full_budget(q_lp, iterations)), _pivots(tol, t_full)), t_full
+            q_lp, t_lp, q_sol, t_sol, (_pivots(tol, q_full), _pivots(tol, t_full)), q_full
         )
         t_sol = t_polished[0]
         forced = _open_half_space(t_polished)

@@ -424,7 +424,8 @@ def _quality_bounds(p, n, noise):
     from grasp_jax._cones import cone_edges, safe_normalize
 
     def one(p, n, e):
-        lp = _closure.quality_lp(p, cone_edges(safe_normalize(n), MU, 8, None))
+        edges = cone_edges(safe_normalize(n), MU, 8, None)
+        lp = _closure.quality_lp(_closure.about_first(p, safe_normalize(n), edges), edges)
         (sol,) = _lp.solve(lp, consistent=True)
         tight, _ = _closure.quality_bound(lp, sol.y)
         loose, slack = _closure.quality_bound(lp, sol.y + e)

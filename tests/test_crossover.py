@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from grasp_jax._closure import SHIFT, quality_lp
+from grasp_jax._closure import SHIFT, about_first, quality_lp
 from grasp_jax._cones import cone_edges
 from grasp_jax._crossover import FEASIBILITY, _inverse, crossover, polish
 from grasp_jax._lp import LP, LPSolution, Status, solve
@@ -166,7 +166,8 @@ def test_float32_quality_lp_vertex_matches_float64():
     @jit
     def deltas(p, n):
         def one(p, n):
-            lp = quality_lp(p, cone_edges(n, jnp.asarray(MU, p.dtype), 25, None))
+            edges = cone_edges(n, jnp.asarray(MU, p.dtype), 25, None)
+            lp = quality_lp(about_first(p, n, edges), edges)
             (sol,) = solve(lp, consistent=True)
             x, _, cert = crossover(*lp, sol.x, sol.y, PIVOTS)
             return x[-1] - SHIFT, cert, sol.x[-1] - SHIFT
