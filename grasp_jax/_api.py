@@ -90,8 +90,9 @@ def _restart_points(dtype) -> tuple[np.int32, np.int32]:
     return np.int32(min(RETRY_RESTARTS, every)), np.int32(every)
 
 
-def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test, contact):
-    (mu, torsion), iterations, restarts = shared  # traced: every budget runs one compiled program
+def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test, contact="hard"):
+    friction, iterations, restarts = shared  # traced: every budget runs one compiled program
+    mu, torsion = friction if isinstance(friction, tuple) else (friction, 0.0)
     return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
                                  contact, torsion)
 
@@ -196,8 +197,9 @@ def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, to
                     contact=contact, torsion=torsion).force_closure
 
 
-def _quality_single(points, normals, tangents, shared, *, num_edges, signed, contact):
-    (mu, torsion), iterations, restarts = shared  # traced, as in evaluate
+def _quality_single(points, normals, tangents, shared, *, num_edges, signed, contact="hard"):
+    friction, iterations, restarts = shared  # traced, as in evaluate
+    mu, torsion = friction if isinstance(friction, tuple) else (friction, 0.0)
     return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts, contact,
                                 torsion)
 
