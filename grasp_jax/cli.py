@@ -41,6 +41,7 @@ examples:
   grasp-jax sample wrench.csv --hole wrench_hole.csv --fingers 3 --out wrench.npz
   grasp-jax score glass.parquet --mu 0.2 --out glass_mu02.npz
   grasp-jax show glass.parquet --top 6
+  grasp-jax show glass.parquet --top 10 --html glass.html
   grasp-jax optimize glass --fingers 4 --starts 1024 --steps 200 --out opt.npz --plot opt.png
   grasp-jax sample glass --num 100000 --out s.npz && grasp-jax optimize --from s.npz --starts 256
 """
@@ -352,7 +353,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE", type=Path, help="result file (.npz or .parquet) with quality")
     p.add_argument("--object", default=None, help="the object (default: the file's metadata)")
     _add_hole(p, from_file=True)
-    _add_plot(p, default_help="default: FILE with suffix .png")
+    _add_plot(p, default_help="default: FILE with suffix .png, unless --html is given")
+    p.add_argument("--html", type=Path, default=None, metavar="PAGE.html",
+                   help="write an interactive, self-contained page of the --top best grasps (opens offline; "
+                        "grasp_jax.interactive.result_page)")
     p.set_defaults(func=_cmd_show)
 
     _add_optimize(sub, builtins)
@@ -580,26 +584,37 @@ def _cmd_show(args) -> int:
     from . import storage, summary
 
     storage.check_input_path(args.file)
-    plot = args.plot if args.plot is not None else args.file.with_suffix(".png")
+    page = None if args.html is None else storage.check_output_path(args.html, suffixes=(".html", ".htm"),
+                                                                     what="page")
+    plot = args.plot if args.plot is not None or page is not None else args.file.with_suffix(".png")
     _check_plot_path(plot)
     best, meta = summary.best_in_file(args.file, args.top)
     spec = args.object or meta.get("object")
     if spec is None:
         raise ValueError(f"{str(args.file)!r} names no object: pass --object")
     obj = _load_object(spec, _holes(args, meta))
+    if page is not None:
+        from . import interactive
+
+        interactive.result_page(args.file, page, top=args.top, obj=obj)
     if best is None or not len(best):
-        print(f"{PROG}: no force-closure grasp in {args.file}: nothing to draw", file=sys.stderr)
-        return 1
+        print(f"{PROG}: no force-closure grasp in {args.file}: nothing to draw"
+              + (f" but the best tries, on page {page}" if page is not None else ""), file=sys.stderr)
+        return 1 if page is None else 0
     if best.points.shape[-1] != obj.dim:
         raise ValueError(f"the grasps are {best.points.shape[-1]}D but object {obj.name!r} is {obj.dim}D")
     mu = float(meta.get("mu", DEFAULT_MU))
     edges = int(meta.get("edges", 8))
-    plot_best(obj, best, mu=mu, num_edges=edges, path=plot,
-              title=f"{obj.name}: best {len(best)} grasps of {args.file.name}")
+    if plot is not None:
+        plot_best(obj, best, mu=mu, num_edges=edges, path=plot,
+                  title=f"{obj.name}: best {len(best)} grasps of {args.file.name}")
     print("rank  grasp        Q")
     for r, (i, q) in enumerate(zip(best.index, best.quality), 1):
         print(f"{r:4d}  {int(i):9d}  {q:.4f}")
-    print(f"figure {plot}")
+    if plot is not None:
+        print(f"figure {plot}")
+    if page is not None:
+        print(f"page   {page}")
     return 0
 
 

@@ -41,6 +41,7 @@ __all__ = [
     "reachable_axes_3d",
     "decimate",
     "plot_optimization",
+    "html_page",
 ]
 
 #: Colours used throughout (contacts, cones, reference contact, mesh).
@@ -893,3 +894,24 @@ def plot_optimization(quality_history, *, sampled_quality=None, grasps=(), geome
     if title:
         fig.suptitle(title, fontsize=11)
     return _save(fig, path)
+
+
+def html_page(path, page=None, *, top=10, obj=None, max_faces=20000, title=None):
+    """An interactive, self-contained HTML page of the best ``top`` grasps of a result file, the
+    same as ``grasp-jax show FILE --html PAGE`` (:func:`grasp_jax.interactive.result_page`: turn the
+    object around, pick a grasp, hover a contact for its grasp's columns; plotly, opens offline).
+
+    Args:
+        path: a result file (``.npz`` / ``.parquet``).
+        page: the ``.html`` file to write (default: ``path`` with suffix ``.html``).
+        top: grasps drawn, best first (force-closure ones first).
+        obj: the object (default: the one the file's metadata names).
+        max_faces: larger meshes are decimated for display (the page says so).
+        title: the page's title.
+
+    Returns:
+        The page's :class:`pathlib.Path`.
+    """
+    from .interactive import result_page
+
+    return result_page(path, page, top=top, obj=obj, max_faces=max_faces, title=title)

@@ -1,0 +1,732 @@
+"""Interactive, self-contained HTML pages of grasps and result files (plotly).
+
+A page opens in any browser without a network (plotly's script is embedded, about 4.8 MB) and
+shows:
+
+* the object: a 3D mesh (decimated for display above ``max_faces`` faces, with a note in the
+  title) or a planar polygon with its holes;
+* the best ``top`` grasps, all together or one at a time (the drop-down menu, or a click on a
+  grasp's legend entry): contacts (``c_1`` larger, in red), outward normals, friction pyramids
+  (3D: drawn on the finger's side, mirrored through the contact, as :func:`grasp_jax.plotting.
+  plot_grasp_3d` draws them; 2D: wedges into the object), and the central axis of the grasp's
+  balancing wrench (below);
+* hovering a contact shows the grasp's index in the file, its verdict, Q and every other column
+  of the file for that grasp (any column: ``epsilon``, ``objective``, ``reason``, columns written
+  by later versions such as a probability of force-closure, a critical friction or jaw poses);
+* a table of the drawn grasps, a histogram of Q over the whole file (force-closure grasps), and
+  for an optimizer result Q against step for the drawn grasps and the contacts' paths (from
+  ``initial_points`` to ``points``, or over every step where the file has a per-step field of
+  shape ``(N, steps, n, d)``).
+
+**The central axis drawn** is that of Proposition 1 of the paper: at the optimum of the quality LP
+(eq. 18-20, solved again here by HiGHS on :mod:`grasp_jax.reference`'s wrenches), the wrench
+``w_r`` of contacts ``2..n`` balances a force of contact 1 inside its cone; its central axis
+``Delta_r*`` passes through ``c_1`` (for hard contacts: ``w_r`` has no torque about ``c_1``)
+inside the negative friction cone of ``c_1``. It is drawn dashed, through the whole object.
+
+Only the drawn grasps travel to the page, so its size does not grow with the file: 100,000 grasps
+of a 16,384-face YCB mesh give a page of about 5.6 MB. Reading is streamed, chunk by chunk.
+
+Nothing here needs JAX; :func:`result_page` (``grasp-jax show FILE --html PAGE``) loads the object
+through :mod:`grasp_jax.objects`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html as _html
+import json
+import math
+import os
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+__all__ = ["ShownGrasps", "select_grasps", "grasp_figure", "grasp_page", "result_page", "write_page",
+           "MAX_FACES", "DEFAULT_TOP"]
+
+#: Grasps drawn by default.
+DEFAULT_TOP = 10
+#: Faces of a displayed mesh; larger meshes are decimated (quadric decimation where
+#: ``fast_simplification`` is installed, else :func:`grasp_jax.plotting.decimate`'s vertex clustering).
+MAX_FACES = 20_000
+#: Bins of the page's Q histogram.
+HISTOGRAM_BINS = 60
+#: Values of an array column shown in a hover label (the rest elided).
+_MAX_HOVER_VALUES = 12
+
+_CONTACT = "#1f4e9c"
+_CONE = "#e8833a"
+_FIRST = "#c0262d"
+_OBJECT = "#9fb3cc"
+_AXIS = "#2c8a3c"
+_PATH = "#7b3fa0"
+_SERIES = ("history", "quality_history")
+
+
+# --------------------------------------------------------------------------------------------------
+# Which grasps a page draws
+
+
+@dataclasses.dataclass(frozen=True)
+class ShownGrasps:
+    """The grasps a page draws, best first, with every column the file has for them.
+
+    Attributes:
+        index: ``(k,)`` int, row of each grasp in the file (0-based).
+        points, normals: ``(k, n, d)`` float.
+        columns: column name -> ``(k, ...)`` array: every field of the file but ``points`` and
+            ``normals`` (``quality``, ``force_closure``, ``initial_points``, ``quality_history``, any
+            extra column), in file order.
+        num: rows in the file; ``num_force_closure``: force-closure rows (``None`` when unscored).
+        histogram: ``(counts (B,), edges (B + 1,))`` of Q over the file's force-closure grasps, or
+            ``None``.
+    """
+
+    index: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    columns: dict
+    num: int = 0
+    num_force_closure: int | None = None
+    histogram: tuple | None = None
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def select_grasps(path, top: int = DEFAULT_TOP, *, chunk: int = 65536) -> tuple[ShownGrasps, dict]:
+    """The ``top`` best grasps of a result file and the file's metadata, streamed with flat memory.
+
+    Force-closure grasps come first by decreasing Q, then the others by decreasing Q (ties: file
+    order), so that a file with fewer than ``top`` force-closure grasps (an optimizer's) still shows
+    its best tries, each with its verdict. A file without ``quality`` gives its first ``top`` grasps.
+
+    Returns:
+        ``(ShownGrasps, metadata)``.
+    """
+    from . import storage
+
+    src = storage.ResultFile(path)
+    top = int(top)
+    if top < 1:
+        raise ValueError(f"top must be a positive integer; got {top}")
+    scored = "quality" in src.fields
+    has_fc = "force_closure" in src.fields
+    mu = float(src.metadata.get("mu", 1.0))
+    upper = math.sqrt(1.0 + mu * mu)
+    edges = np.linspace(0.0, upper, HISTOGRAM_BINS + 1)
+    counts = np.zeros(HISTOGRAM_BINS, np.int64)
+    num_fc = 0 if has_fc else None
+    held = None  # (index, quality, force_closure)
+    offset = 0
+    if scored:
+        columns = ("quality",) + (("force_closure",) if has_fc else ())
+        for c in src.iter_chunks(columns, chunk):
+            q = np.asarray(c["quality"], float)
+            fc = np.asarray(c["force_closure"], bool) if has_fc else np.isfinite(q) & (q > 0)
+            rows = len(q)
+            if has_fc:
+                num_fc += int(fc.sum())
+            good = q[fc & np.isfinite(q)]
+            counts += np.histogram(np.clip(good, 0.0, upper), edges)[0]
+            key = np.where(np.isfinite(q), q, -np.inf)
+            new = (np.arange(offset, offset + rows), key, fc)
+            offset += rows
+            if held is not None:
+                new = tuple(np.concatenate([a, b]) for a, b in zip(held, new))
+            if len(new[0]) > top:
+                order = np.lexsort((new[0], -new[1], ~new[2]))[:top]
+                new = tuple(a[order] for a in new)
+            held = new
+        index = held[0][np.lexsort((held[0], -held[1], ~held[2]))] if held is not None else np.zeros(0, int)
+    else:
+        index = np.arange(min(top, src.num))
+    index = np.asarray(index, np.int64)
+    # second pass: every column of the chosen rows, in rank order
+    names = tuple(src.fields)
+    wanted = np.sort(index)
+    picked: dict[str, list] = {n: [] for n in names}
+    offset = 0
+    if len(wanted):
+        for c in src.iter_chunks(names, chunk):
+            rows = len(c["points"])
+            sel = wanted[(wanted >= offset) & (wanted < offset + rows)] - offset
+            if len(sel):
+                for n in names:
+                    picked[n].append(np.asarray(c[n])[sel])
+            offset += rows
+            if offset > wanted[-1]:
+                break
+    order = np.argsort(np.argsort(index))  # position of each ranked row among the sorted rows
+    arrays = {}
+    for n in names:
+        parts = picked[n]
+        a = np.concatenate(parts) if parts else np.zeros((0,) + tuple(src.fields[n][1:]))
+        arrays[n] = a[order] if len(a) else a
+    points = np.asarray(arrays.pop("points"), float)
+    normals = np.asarray(arrays.pop("normals"), float)
+    histogram = (counts, edges) if scored and counts.sum() else None
+    shown = ShownGrasps(index, points, normals, arrays, num=int(src.num), num_force_closure=num_fc,
+                        histogram=histogram)
+    return shown, dict(src.metadata)
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry
+
+
+def _mesh_arrays(obj):
+    """``(vertices (V, 3), faces (F, 3))`` of a mesh-like object."""
+    from .plotting import _mesh_arrays as arrays
+
+    return arrays(obj)
+
+
+def display_mesh(vertices, faces, max_faces: int = MAX_FACES):
+    """``(vertices, faces, note)``: the mesh, decimated to at most ``max_faces`` faces for display
+    (``note`` says so; ``None`` when unchanged)."""
+    vertices = np.asarray(vertices, float)
+    faces = np.asarray(faces, np.int64)
+    if len(faces) <= max_faces:
+        return vertices, faces, None
+    how = "quadric decimation"
+    try:
+        import fast_simplification
+
+        v, f = fast_simplification.simplify(vertices.astype(np.float32), faces.astype(np.int32),
+                                            target_count=int(max_faces))
+        v, f = np.asarray(v, float), np.asarray(f, np.int64)
+        if not len(f) or len(f) > max_faces:
+            raise ValueError("decimation missed its target")
+    except Exception:  # noqa: BLE001 - not installed, or it failed on this mesh: cluster vertices
+        from .plotting import decimate
+
+        how = "vertex clustering"
+        v, f = decimate(vertices, faces, max_faces)
+    note = f"mesh decimated for display ({how}): {len(f):,} of {len(faces):,} faces"
+    return v, f, note
+
+
+def _rings(obj):
+    if hasattr(obj, "rings"):
+        return [np.asarray(r, float) for r in obj.rings]
+    from .plotting import _as_rings
+
+    return _as_rings(obj)
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+
+
+def _column_owner(n: int, m: int, contact: str, d: int) -> np.ndarray:
+    """The contact each column of :func:`grasp_jax.reference.wrenches` belongs to."""
+    per = 2 if d == 2 else m
+    if contact == "soft":
+        return np.repeat(np.arange(n), 2 * per)
+    owner = np.repeat(np.arange(n), per)
+    if contact == "dexnet-soft":
+        owner = np.concatenate([owner, np.repeat(np.arange(n), 2)])
+    return owner
+
+
+def balancing_axis(points, normals, *, mu, num_edges=8, contact="hard", torsion=None):
+    """The central axis ``Delta_r*`` of one grasp (see the module docstring), or ``None`` where the
+    quality LP has no optimum with a non-zero force.
+
+    Returns:
+        ``(point (d,), direction (d,))``: a point of the axis (the one nearest ``c_1``) and its unit
+        direction, the direction of the force of contacts ``2..n``.
+    """
+    from scipy.optimize import linprog
+
+    from . import reference
+
+    points, normals = np.asarray(points, float), _unit(normals)
+    n, d = points.shape
+    torsion = 0.0 if torsion is None else float(torsion)
+    contact = contact or "hard"
+    try:
+        W = reference.wrenches(points, normals, mu, num_edges, points[0], 1.0, None, contact, torsion)
+    except Exception:  # noqa: BLE001 - a model the reference does not know: no axis
+        return None
+    z1 = -normals[0]
+    A = np.concatenate([W.T, np.concatenate([z1, np.zeros(W.shape[1] - d)])[:, None]], axis=1)
+    K = W.shape[0]
+    A_eq = np.vstack([A, np.concatenate([np.ones(K), [0.0]])])
+    b_eq = np.zeros(len(A_eq))
+    b_eq[-1] = 1.0
+    c = np.zeros(K + 1)
+    c[-1] = -1.0
+    res = linprog(c, A_eq=A_eq, b_eq=b_eq, bounds=(0, None), method="highs")
+    if res.status != 0 or -res.fun <= 0:
+        return None
+    a = res.x[:K]
+    owner = _column_owner(n, int(num_edges), contact, d)
+    if len(owner) != K:
+        return None
+    w = (a * (owner > 0)) @ W  # the wrench of contacts 2..n, torque about c_1
+    f, tau = w[:d], w[d:]
+    f2 = float(f @ f)
+    if f2 <= 1e-24 * max(float(tau @ tau), 1e-300):
+        return None
+    if d == 3:
+        offset = np.cross(f, tau) / f2
+    else:
+        offset = np.array([f[1] * tau[0], -f[0] * tau[0]]) / f2
+    return points[0] + offset, f / math.sqrt(f2)
+
+
+# --------------------------------------------------------------------------------------------------
+# Hover text
+
+
+def _format_value(name: str, value) -> str:
+    a = np.asarray(value)
+    if a.ndim == 0:
+        v = a.item()
+        if isinstance(v, (bool, np.bool_)):
+            return "yes" if v else "no"
+        if name == "reason":
+            try:
+                from ._optimize import EndReason
+
+                return EndReason(int(v)).message
+            except Exception:  # noqa: BLE001
+                return str(v)
+        if isinstance(v, float):
+            return f"{v:.6g}"
+        return _html.escape(str(v))
+    flat = a.reshape(-1)
+    if np.issubdtype(a.dtype, np.floating):
+        text = [f"{x:.4g}" for x in flat[:_MAX_HOVER_VALUES]]
+    else:
+        text = [_html.escape(str(x)) for x in flat[:_MAX_HOVER_VALUES]]
+    more = ", ..." if flat.size > _MAX_HOVER_VALUES else ""
+    shape = "x".join(str(s) for s in a.shape)
+    return f"({shape}) [{', '.join(text)}{more}]"
+
+
+def _verdict(columns: Mapping, r: int) -> str:
+    if "force_closure" in columns:
+        return "force-closure" if bool(columns["force_closure"][r]) else "not force-closure"
+    return "not scored"
+
+
+def _grasp_lines(shown: ShownGrasps, r: int) -> list[str]:
+    cols = shown.columns
+    lines = [f"<b>grasp #{int(shown.index[r])}</b> (rank {r + 1} of {len(shown)})", _verdict(cols, r)]
+    if "quality" in cols:
+        lines.append(f"Q = {float(cols['quality'][r]):.6g}")
+    for name, values in cols.items():
+        if name in ("force_closure", "quality") or name in _SERIES:
+            if name in _SERIES:
+                series = np.asarray(values[r], float)
+                if series.size:
+                    lines.append(f"{name}: {series.size} steps, last {series[-1]:.4g}, best {np.nanmax(series):.4g}")
+            continue
+        if np.asarray(values).ndim >= 3 and name != "initial_points":
+            continue  # per-step contact paths: drawn, not listed
+        lines.append(f"{_html.escape(name)} = {_format_value(name, values[r])}")
+    return lines
+
+
+# --------------------------------------------------------------------------------------------------
+# Figure
+
+
+def _paths(shown: ShownGrasps):
+    """``(k, S, n, d)`` contact paths (start to end), or ``None``."""
+    k, n, d = shown.points.shape
+    for name, values in shown.columns.items():
+        a = np.asarray(values)
+        if a.ndim == 4 and a.shape[0] == k and a.shape[2:] == (n, d) and a.shape[1] > 1:
+            return np.asarray(a, float), name
+    if "initial_points" in shown.columns:
+        start = np.asarray(shown.columns["initial_points"], float)
+        if start.shape == shown.points.shape:
+            return np.stack([start, shown.points], axis=1), "initial_points"
+    return None
+
+
+def _gaps(segments):
+    """Segments ``(S, L, d)`` as one polyline with NaN gaps: ``(S * (L + 1), d)``."""
+    segments = np.asarray(segments, float)
+    pad = np.full(segments.shape[:1] + (1,) + segments.shape[2:], np.nan)
+    return np.concatenate([segments, pad], axis=1).reshape(-1, segments.shape[-1])
+
+
+def _xyz(a, d):
+    a = np.asarray(a, np.float32 if d == 3 else float)
+    out = dict(x=a[:, 0], y=a[:, 1])
+    if d == 3:
+        out["z"] = a[:, 2]
+    return out
+
+
+def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8, contact: str = "hard",
+                 torsion: float | None = None, title: str | None = None, max_faces: int = MAX_FACES,
+                 central_axis: bool = True):
+    """A plotly figure of the grasps of ``shown`` on ``geometry`` (see the module docstring).
+
+    Args:
+        geometry: 3D: an object of :mod:`grasp_jax.objects` with a mesh, a ``trimesh.Trimesh``, or a
+            ``(vertices (V, 3), faces (F, 3))`` pair; 2D: a polygon (``rings``), a ``(k, 2)`` vertex
+            array or a list of rings.
+        shown: the grasps (:func:`select_grasps`, or :class:`ShownGrasps` built from arrays).
+        mu, num_edges: the friction pyramids drawn (and of the central axis's LP).
+        contact, torsion: the contact model of the central axis's LP.
+        title: the page's title.
+        max_faces: meshes with more faces are decimated for display.
+        central_axis: draw each grasp's balancing central axis.
+
+    Returns:
+        A :class:`plotly.graph_objects.Figure`.
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    from . import reference
+
+    k = len(shown)
+    if k == 0:
+        raise ValueError("no grasp to draw")
+    pts = np.asarray(shown.points, float)
+    nrm = _unit(shown.normals)
+    if pts.ndim != 3 or pts.shape != nrm.shape or pts.shape[-1] not in (2, 3):
+        raise ValueError(f"points and normals must be (k, n, d) with d in {{2, 3}}; got {pts.shape}, {nrm.shape}")
+    _, n, d = pts.shape
+    cols = shown.columns
+    series = np.asarray(cols["quality_history"], float) if "quality_history" in cols else None
+    if series is not None and (series.ndim != 2 or series.shape[0] != k):
+        series = None
+    paths = _paths(shown)
+    rows = 3 if series is not None else 2
+    spec_main = {"type": "scene" if d == 3 else "xy", "rowspan": rows}
+    specs = [[spec_main, {"type": "table"}], [None, {"type": "xy"}]]
+    heights = [0.45, 0.55]
+    if rows == 3:
+        specs.append([None, {"type": "xy"}])
+        heights = [0.36, 0.32, 0.32]
+    titles = ["", "", "Q of the file's force-closure grasps (red: the drawn grasps)"
+              if shown.histogram is not None else "Q of the drawn grasps"]
+    if rows == 3:
+        titles.append("Q against step (drawn grasps)")
+    fig = make_subplots(rows=rows, cols=2, column_widths=[0.64, 0.36], row_heights=heights, specs=specs,
+                        horizontal_spacing=0.03, vertical_spacing=0.11, subplot_titles=titles)
+    always: list[bool] = []  # per trace: drawn whatever grasp is selected
+    owner: list[int] = []  # per trace: grasp rank, or -1
+
+    def add(trace, r=-1, row=1, col=1):
+        fig.add_trace(trace, row=row, col=col)
+        owner.append(r)
+
+    # the object ---------------------------------------------------------------------------------
+    note = None
+    if d == 3:
+        v, f = _mesh_arrays(geometry)
+        v, f, note = display_mesh(v, f, max_faces)
+        lo, hi = v.min(0), v.max(0)
+        add(go.Mesh3d(**_xyz(v, 3), i=f[:, 0].astype(np.int32), j=f[:, 1].astype(np.int32),
+                      k=f[:, 2].astype(np.int32), color=_OBJECT, opacity=0.55, flatshading=False,
+                      lighting=dict(ambient=0.55, diffuse=0.7, specular=0.15, roughness=0.8),
+                      hoverinfo="skip", name="object", showlegend=True, legendgroup="object"))
+    else:
+        rings = _rings(geometry)
+        allv = np.concatenate(rings)
+        lo, hi = allv.min(0), allv.max(0)
+        for i, ring in enumerate(rings):
+            closed = np.concatenate([ring, ring[:1]])
+            add(go.Scatter(x=closed[:, 0], y=closed[:, 1], mode="lines", fill="toself",
+                           fillcolor=_OBJECT if i == 0 else "white", line=dict(color="#4d5b6b", width=1.5),
+                           hoverinfo="skip", name="object" if i == 0 else f"hole {i}",
+                           showlegend=i == 0, legendgroup="object"))
+    lo = np.minimum(lo, pts.reshape(-1, d).min(0))
+    hi = np.maximum(hi, pts.reshape(-1, d).max(0))
+    extent = float(np.max(hi - lo)) or 1.0
+    centre = 0.5 * (lo + hi)
+    length = 0.1 * extent
+
+    # the grasps ---------------------------------------------------------------------------------
+    hover_rows = [_grasp_lines(shown, r) for r in range(k)]
+    for r in range(k):
+        p, nr = pts[r], nrm[r]
+        group = f"grasp {r}"
+        label = f"#{r + 1}: grasp {int(shown.index[r])}"
+        if "quality" in cols:
+            label += f", Q {float(cols['quality'][r]):.3f}"
+        text = ["<br>".join([f"contact c_{j + 1}"] + hover_rows[r]) for j in range(n)]
+        colours = [_FIRST] + [_CONTACT] * (n - 1)
+        sizes = [9] + [6] * (n - 1) if d == 3 else [13] + [10] * (n - 1)
+        marker = dict(color=colours, size=sizes, line=dict(color="white", width=1))
+        common = dict(legendgroup=group)
+        labels = [f"c{j + 1}" for j in range(n)]
+        if d == 3:
+            add(go.Scatter3d(**_xyz(p, 3), mode="markers+text", marker=marker, text=labels,
+                             hovertext=text, hovertemplate="%{hovertext}<extra></extra>",
+                             textposition="top center", textfont=dict(size=10, color=_CONTACT),
+                             name=label, showlegend=True, **common), r)
+        else:
+            add(go.Scatter(**_xyz(p, 2), mode="markers+text", marker=marker, text=labels, hovertext=text,
+                           hovertemplate="%{hovertext}<extra></extra>", textposition="top center",
+                           name=label, showlegend=True, **common), r)
+        # normals, outward
+        seg = np.stack([p, p + 1.35 * length * nr], axis=1)
+        line = _gaps(seg)
+        tr = (go.Scatter3d if d == 3 else go.Scatter)(
+            **_xyz(line, d), mode="lines", line=dict(color="#333333", width=3 if d == 3 else 1.5),
+            hoverinfo="skip", name="normals", showlegend=False, **common)
+        add(tr, r)
+        # friction pyramids
+        edges = _unit(reference.cone_edges(nr, float(mu), int(num_edges)))  # (n, m, d), inward
+        if d == 3:
+            rim = p[:, None] - length * edges  # outside, mirrored through the contact
+            m = rim.shape[1]
+            verts = np.concatenate([p[:, None], rim], axis=1).reshape(-1, 3)  # (n (m + 1), 3)
+            base = (np.arange(n) * (m + 1))[:, None]
+            j = np.arange(m)[None]
+            tri_i = np.broadcast_to(base, (n, m)).reshape(-1)
+            tri_j = (base + 1 + j).reshape(-1)
+            tri_k = (base + 1 + (j + 1) % m).reshape(-1)
+            add(go.Mesh3d(**_xyz(verts, 3), i=tri_i.astype(np.int32), j=tri_j.astype(np.int32),
+                          k=tri_k.astype(np.int32), color=_CONE, opacity=0.35, hoverinfo="skip",
+                          name="friction pyramids", showlegend=False, **common), r)
+            ring = np.concatenate([rim, rim[:, :1]], axis=1)
+            spokes = np.stack([np.broadcast_to(p[:, None], rim.shape), rim], axis=2).reshape(-1, 2, 3)
+            lines = np.concatenate([_gaps(ring), _gaps(spokes)])
+            add(go.Scatter3d(**_xyz(lines, 3), mode="lines", line=dict(color=_CONE, width=2),
+                             hoverinfo="skip", name="pyramid edges", showlegend=False, **common), r)
+        else:
+            wedge = np.stack([p, p + length * edges[:, 0], p + length * edges[:, 1], p], axis=1)
+            add(go.Scatter(**_xyz(_gaps(wedge), 2), mode="lines", fill="toself", fillcolor="rgba(232,131,58,0.45)",
+                           line=dict(color=_CONE, width=1), hoverinfo="skip", name="friction cones",
+                           showlegend=False, **common), r)
+        # central axis
+        axis = balancing_axis(p, nr, mu=mu, num_edges=num_edges, contact=contact, torsion=torsion) \
+            if central_axis else None
+        if axis is not None:
+            a0, u = axis
+            mid = a0 + float((centre - a0) @ u) * u
+            seg = np.stack([mid - 0.75 * extent * u, mid + 0.75 * extent * u])
+            hover = ("central axis \u0394<sub>r</sub>* of contacts 2..n at the quality LP's optimum"
+                     "<br>" + hover_rows[r][0])
+            tr = (go.Scatter3d if d == 3 else go.Scatter)(
+                **_xyz(seg, d), mode="lines", line=dict(color=_AXIS, width=4 if d == 3 else 2, dash="dash"),
+                hovertext=[hover, hover], hovertemplate="%{hovertext}<extra></extra>", name="central axis",
+                showlegend=False, **common)
+            add(tr, r)
+        # contact paths (optimizer results)
+        if paths is not None:
+            path, source = paths
+            track = np.transpose(path[r], (1, 0, 2))  # (n, S, d)
+            steps = track.shape[1]
+            what = "start to end" if source == "initial_points" else f"{steps} steps ({source})"
+            tr = (go.Scatter3d if d == 3 else go.Scatter)(
+                **_xyz(_gaps(track), d), mode="lines", line=dict(color=_PATH, width=3 if d == 3 else 1.5),
+                hovertext=[f"path of a contact, {what}<br>{hover_rows[r][0]}"] * (n * (steps + 1)),
+                hovertemplate="%{hovertext}<extra></extra>", name="contact paths", showlegend=False, **common)
+            add(tr, r)
+            starts = track[:, 0]
+            tr = (go.Scatter3d if d == 3 else go.Scatter)(
+                **_xyz(starts, d), mode="markers", marker=dict(color=_PATH, size=4 if d == 3 else 7, symbol="circle-open"),
+                hovertext=[f"start of contact c_{j + 1}<br>{hover_rows[r][0]}" for j in range(n)],
+                hovertemplate="%{hovertext}<extra></extra>", name="starts", showlegend=False, **common)
+            add(tr, r)
+
+    # the table ----------------------------------------------------------------------------------
+    header = ["rank", "grasp", "verdict", "Q"]
+    cells = [list(range(1, k + 1)), [int(i) for i in shown.index], [_verdict(cols, r) for r in range(k)],
+             [f"{float(q):.4f}" for q in cols["quality"]] if "quality" in cols else ["-"] * k]
+    for name, values in cols.items():
+        a = np.asarray(values)
+        if name in ("force_closure", "quality") or a.ndim != 1:
+            continue
+        header.append(_html.escape(name))
+        cells.append([_format_value(name, x) for x in a])
+    add(go.Table(header=dict(values=[f"<b>{h}</b>" for h in header], fill_color="#e4e9f0", align="left",
+                             font=dict(size=11)),
+                 cells=dict(values=cells, align="left", font=dict(size=11), height=22),
+                 columnwidth=[34, 60, 110, 56] + [70] * (len(header) - 4)), -1, row=1, col=2)
+
+    # Q histogram and the drawn grasps' Q --------------------------------------------------------
+    qs = np.asarray(cols["quality"], float) if "quality" in cols else None
+    if shown.histogram is not None:
+        counts, edges_h = shown.histogram
+        last = int(np.max(np.flatnonzero(counts))) + 1 if counts.any() else len(counts)
+        centres = 0.5 * (edges_h[:-1] + edges_h[1:])[:last]
+        add(go.Bar(x=centres, y=counts[:last], width=float(edges_h[1] - edges_h[0]), marker_color="#8ea3bf",
+                   name="Q histogram", showlegend=False,
+                   hovertemplate="Q %{x:.3f}: %{y} grasps<extra></extra>"), -1, row=2, col=2)
+        top_count = float(counts.max())
+    else:
+        top_count = 1.0
+    if qs is not None:
+        for r in range(k):
+            add(go.Scatter(x=[qs[r], qs[r]], y=[0, top_count], mode="lines", line=dict(color=_FIRST, width=1.5),
+                           hovertext=[hover_rows[r][0]] * 2, hovertemplate="%{hovertext}<br>Q %{x:.4f}<extra></extra>",
+                           legendgroup=f"grasp {r}", showlegend=False), r, row=2, col=2)
+    if series is not None:
+        steps = np.arange(1, series.shape[1] + 1)
+        for r in range(k):
+            add(go.Scatter(x=steps, y=series[r], mode="lines", line=dict(width=1.5),
+                           hovertext=[hover_rows[r][0]] * len(steps),
+                           hovertemplate="%{hovertext}<br>step %{x}: Q %{y:.4f}<extra></extra>",
+                           legendgroup=f"grasp {r}", showlegend=False), r, row=3, col=2)
+
+    # layout -------------------------------------------------------------------------------------
+    fig.update_xaxes(title_text="Q", row=2, col=2)
+    fig.update_yaxes(title_text="grasps" if shown.histogram is not None else "", row=2, col=2)
+    if series is not None:
+        fig.update_xaxes(title_text="step", row=3, col=2)
+        fig.update_yaxes(title_text="Q", row=3, col=2)
+    half = 0.55 * extent
+    if d == 3:
+        rng = {a: [float(centre[i] - half), float(centre[i] + half)] for i, a in enumerate("xyz")}
+        fig.update_scenes(aspectmode="cube", xaxis=dict(range=rng["x"], showbackground=False, title=""),
+                          yaxis=dict(range=rng["y"], showbackground=False, title=""),
+                          zaxis=dict(range=rng["z"], showbackground=False, title=""))
+    else:
+        fig.update_xaxes(range=[centre[0] - half, centre[0] + half], row=1, col=1, showgrid=False,
+                         zeroline=False)
+        fig.update_yaxes(range=[centre[1] - half, centre[1] + half], row=1, col=1, scaleanchor="x",
+                         scaleratio=1, showgrid=False, zeroline=False)
+
+    # the selector: all grasps, or one ----------------------------------------------------------
+    def visible(rank):
+        return [True if o < 0 or rank is None or o == rank else "legendonly" for o in owner]
+
+    for trace, shown_now in zip(fig.data, visible(0)):  # the best grasp first
+        trace.visible = shown_now
+    buttons = [dict(label=f"all {k} grasps", method="restyle", args=[{"visible": visible(None)}])]
+    for r in range(k):
+        label = f"#{r + 1}: grasp {int(shown.index[r])}"
+        if qs is not None:
+            label += f", Q {qs[r]:.3f}"
+        label += f" ({_verdict(cols, r)})"
+        buttons.append(dict(label=label, method="restyle", args=[{"visible": visible(r)}]))
+    heading = _html.escape(title) if title else "grasps"
+    sub = [note] if note else []
+    sub.append("drag to turn, scroll to zoom; hover a contact for its grasp's columns; "
+               "the menu (or a legend entry) picks a grasp" if d == 3 else
+               "hover a contact for its grasp's columns; the menu (or a legend entry) picks a grasp")
+    fig.update_layout(
+        title=dict(text=f"{heading}<br><sup>{'<br>'.join(_html.escape(s) for s in sub)}</sup>", x=0.01,
+                   xanchor="left", font=dict(size=15)),
+        updatemenus=[dict(type="dropdown", buttons=buttons, active=1, direction="down", x=0.0, xanchor="left",
+                          y=0.99, yanchor="top", showactive=True, bgcolor="white", font=dict(size=11))],
+        legend=dict(x=0.0, y=0.88, xanchor="left", yanchor="top", bgcolor="rgba(255,255,255,0.7)",
+                    font=dict(size=10), groupclick="togglegroup"),
+        margin=dict(l=10, r=10, t=90, b=40), height=820, template="plotly_white",
+        hoverlabel=dict(align="left", font=dict(size=11)),
+    )
+    return fig
+
+
+def write_page(fig, page, *, title: str = "grasp_jax") -> Path:
+    """Write ``fig`` as one self-contained HTML file (plotly's script embedded: it opens offline),
+    atomically: a complete page or none at ``page``."""
+    from . import storage
+
+    page = storage.check_output_path(page, suffixes=(".html", ".htm"), what="page")
+    text = fig.to_html(include_plotlyjs=True, full_html=True, div_id="grasp-jax-page",
+                       config={"displaylogo": False, "responsive": True, "scrollZoom": True})
+    text = text.replace("<head>", f"<head><title>{_html.escape(title)}</title>", 1)
+    fd, tmp = storage.temp_file(page, what="page")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+            out.flush()
+            os.fsync(out.fileno())
+        os.replace(tmp, page)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return page
+
+
+def grasp_page(geometry, points, normals, page, *, mu: float, num_edges: int = 8, columns=None, index=None,
+               contact: str = "hard", torsion: float | None = None, title: str | None = None,
+               max_faces: int = MAX_FACES) -> Path:
+    """A page of grasps held in memory (e.g. the best of a :func:`grasp_jax.evaluate` call).
+
+    Args:
+        geometry: the object (as :func:`grasp_figure` takes it).
+        points, normals: ``(k, n, d)`` float, the grasps to draw, best first.
+        page: the ``.html`` file to write.
+        mu, num_edges, contact, torsion: the friction model.
+        columns: optional mapping of column name -> ``(k, ...)`` values shown on hover and in the
+            table (``quality`` and ``force_closure`` are read as Q and the verdict).
+        index: ``(k,)`` the grasps' numbers (default ``0..k-1``).
+        title, max_faces: as :func:`grasp_figure`.
+
+    Returns:
+        The page's path.
+    """
+    points = np.asarray(points, float)
+    if points.ndim == 2:
+        points, normals = points[None], np.asarray(normals, float)[None]
+    k = len(points)
+    cols = {name: np.asarray(v) for name, v in (columns or {}).items()}
+    for name, v in cols.items():
+        if len(v) != k:
+            raise ValueError(f"column {name!r} has {len(v)} rows; points has {k}")
+    index = np.arange(k) if index is None else np.asarray(index, np.int64)
+    shown = ShownGrasps(index, points, np.asarray(normals, float), cols, num=k)
+    fig = grasp_figure(geometry, shown, mu=mu, num_edges=num_edges, contact=contact, torsion=torsion,
+                       title=title, max_faces=max_faces)
+    return write_page(fig, page, title=title or "grasp_jax")
+
+
+def result_page(path, page=None, *, top: int = DEFAULT_TOP, obj=None, holes=(), max_faces: int = MAX_FACES,
+                title: str | None = None) -> Path:
+    """The interactive page of a result file (what ``grasp-jax show FILE --html PAGE`` writes).
+
+    Args:
+        path: a result file (``.npz`` / ``.parquet``) of ``grasp-jax sample``, ``score`` or
+            ``optimize``, or any file with ``points`` and ``normals``.
+        page: the ``.html`` file to write (default: ``path`` with suffix ``.html``).
+        top: grasps drawn (:func:`select_grasps`).
+        obj: the object: an object of :mod:`grasp_jax.objects`, a built-in name or a file (default:
+            the file's metadata).
+        holes: polygon holes, when ``obj`` is a polygon file (default: the file's).
+        max_faces, title: as :func:`grasp_figure` (default title: the object, the file and its counts).
+
+    Returns:
+        The page's path.
+    """
+    path = Path(path)
+    page = path.with_suffix(".html") if page is None else Path(page)
+    from . import storage
+
+    storage.check_input_path(path)
+    storage.check_output_path(page, suffixes=(".html", ".htm"), what="page")
+    shown, meta = select_grasps(path, top)
+    if not len(shown):
+        raise ValueError(f"{str(path)!r} holds no grasps")
+    if obj is None or isinstance(obj, (str, os.PathLike)):
+        from . import objects
+
+        spec = obj if obj is not None else meta.get("object")
+        if spec is None:
+            raise ValueError(f"{str(path)!r} names no object: pass obj= (--object)")
+        use_holes = holes or (meta.get("object_holes") or () if obj is None else ())
+        obj = objects.load(spec, holes=use_holes)
+    if shown.points.shape[-1] != obj.dim:
+        raise ValueError(f"the grasps are {shown.points.shape[-1]}D but object {obj.name!r} is {obj.dim}D")
+    mu = float(meta.get("mu", 0.364))
+    edges = int(meta.get("edges", 8))
+    if title is None:
+        counts = f"best {len(shown)} of {shown.num:,} grasps"
+        if shown.num_force_closure is not None:
+            counts += f" ({shown.num_force_closure:,} force-closure)"
+        model = meta.get("contact", "hard")
+        extra = "" if model == "hard" else f", {model} contacts (torsion {meta.get('torsion')})"
+        title = f"{obj.name}: {counts} of {path.name}, mu {mu:g}, {edges} edges{extra}"
+    geometry = obj if obj.dim == 2 else (obj.mesh if hasattr(obj, "mesh") else obj)
+    fig = grasp_figure(geometry, shown, mu=mu, num_edges=edges, contact=meta.get("contact", "hard"),
+                       torsion=meta.get("torsion"), title=title, max_faces=max_faces)
+    return write_page(fig, page, title=title)
+
