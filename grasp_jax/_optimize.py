@@ -108,9 +108,10 @@ class OptimizeResult:
             (``iterations``); one left unfinished gives its best iterate's Q.
         reason: ``(S,) int8`` :class:`EndReason`.
         initial_points: ``(S, n, d)`` the starts, on the surface.
-        objective_name, normal_kind: static strings; steps, seconds: the budget and the wall time;
-        scale: the object's radius; learning_rate: the default optimizer's peak rate (``None``
-        with a user's optimizer).
+        objective_name, normal_kind: static strings.
+        steps, seconds: the budget and the wall time.
+        scale: the object's radius.
+        learning_rate: the default optimizer's peak rate (``None`` with a user's optimizer).
     """
 
     points: jax.Array
