@@ -27,7 +27,7 @@ contact model is defined once.
 Soft contacts are 3D only: a planar contact's moment about its normal is about an axis in the
 plane, outside the planar wrench space ``(f_x, f_y, tau_z)``, so in 2D a soft finger is a hard one.
 
-Proposition 2 with soft contacts (derived in the README, "Soft contacts"): the grasp is
+Proposition 2 with soft contacts (derived in docs/guides/contact-models.md): the grasp is
 force-closure iff (1) the quality LP over all columns has ``delta* > 0`` and (2) the torques about
 ``c_1`` of all columns positively span R^3, contact 1's torsion columns included (hard contacts:
 its columns have no torque about ``c_1`` and are left out, :attr:`Columns.fixed`).

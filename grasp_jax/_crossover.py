@@ -33,7 +33,7 @@ Measured (``experiments/float32_accuracy.py``, 100,000 grasps per shape, the eig
 suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from 8..312 per shape to none
 (with ``_closure._polish_exact`` for grasps whose torques lie in a half-space), verdicts that
 differ outside the 1e-4 band from up to 26 to none (64 pivots after the full budget, 12 after the
-short first pass, ``_constants.Tolerances.crossover``; its cost in float32 throughput: README).
+short first pass, ``_constants.Tolerances.crossover``; its cost in float32 throughput: docs/guides/precision.md).
 
 Everything is dense arithmetic on ``r <= 7`` rows, with one-hot products instead of gathers and
 scatters where they are hot, and rolled loops (the compile time of a chunk program matters as much
