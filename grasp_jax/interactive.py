@@ -25,7 +25,7 @@ shows:
 inside the negative friction cone of ``c_1``. It is drawn dashed, through the whole object.
 
 Only the drawn grasps travel to the page, so its size does not grow with the file: 100,000 grasps
-of a 16,384-face YCB mesh give a page of about 5.6 MB. Reading is streamed, chunk by chunk.
+of a 16,384-face YCB mesh give a page of about 5.3 MB. Reading is streamed, chunk by chunk.
 
 Nothing here needs JAX; :func:`result_page` (``grasp-jax show FILE --html PAGE``) loads the object
 through :mod:`grasp_jax.objects`.
