@@ -11,7 +11,9 @@ configuration. Concrete float64 inputs are computed in float64 (scoped to the ca
 in float32, traced inputs in the tracers' dtype: the rules are in ``grasp_jax._precision``.
 """
 
+from ._api import critical_friction as critical_friction
 from ._api import evaluate as evaluate
+from ._api import friction_label as friction_label
 from ._api import force_closure as force_closure
 from ._api import min_weight as min_weight
 from ._api import quality as quality
@@ -19,6 +21,7 @@ from ._baseline import ferrari_canny as ferrari_canny
 from ._contact import CONTACTS as CONTACTS
 from ._contact import dexnet_torsion as dexnet_torsion
 from ._contact import patch_torsion as patch_torsion
+from ._friction import FrictionStatus as FrictionStatus
 from ._cones import cone_edges as _cone_edges  # noqa: F401
 from ._lp import Status as Status
 from ._objectives import OBJECTIVES as OBJECTIVES
@@ -38,6 +41,9 @@ __all__ = [
     "quality",
     "min_weight",
     "ferrari_canny",
+    "critical_friction",
+    "friction_label",
+    "FrictionStatus",
     "CONTACTS",
     "patch_torsion",
     "dexnet_torsion",

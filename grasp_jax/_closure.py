@@ -559,20 +559,23 @@ def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, ta
                             iterations)
 
 
-def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False) -> tuple[jax.Array, jax.Array]:
+def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None
+                     ) -> tuple[jax.Array, jax.Array]:
     """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
 
     ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
     derivatives come from the envelope theorem on the LP's primal-dual pair (no iteration is
     differentiated), finite everywhere, zero where the value is a constant (0 or ``-inf``).
     ``best_effort``: see :func:`grasp_jax._lp.solve` (an unfinished LP gives its best iterate's value).
+    ``full``: whether the vectors span R^D, where the caller knows it (no rank test here).
     """
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
     if not best_effort:
         sol, _, _ = polish(lp, sol, _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations)))
-    rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
-    full, _ = rank(jax.lax.stop_gradient(vectors))
+    if full is None:
+        rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
+        full, _ = rank(jax.lax.stop_gradient(vectors))
     K = vectors.shape[0]
     value = 1.0 / K - optimal_value(lp, sol)
     margin = jnp.where(has_value(sol), value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))

@@ -1,0 +1,225 @@
+"""Critical friction: the smallest friction coefficient at which **one** grasp is force-closure.
+
+Force-closure is monotone in ``mu``: an edge of the pyramid of ``mu_1 < mu_2`` is a positive
+combination of the edges of ``mu_2`` (edges are ``z + mu d_j`` and the ``d_j`` sum to 0), so the
+set of ``mu`` at which a grasp holds is an interval ``(mu*, inf)``, and the span of the wrenches is
+the same for every ``mu > 0``. ``mu*`` is the root of the classical min-weight margin ``l*(mu)``
+on the contact model's wrenches (``_contact``; ``l* > 0`` exactly at force-closure), found in a
+bracket ``[lo, hi]`` with ``l*(lo) <= 0 < l*(hi)``:
+
+* a Newton step from either end, with the LP's envelope derivative ``d l* / d mu`` (one extra
+  matrix-vector product per solve), taken when it falls inside the bracket; ``l*`` is piecewise
+  smooth in ``mu`` (one piece per optimal basis), and a generalized linear-fractional problem such
+  as this one is what Dinkelbach-type (Newton) iterations solve in a few steps;
+* false position (Illinois) where Newton leaves the bracket, and bisection where the bracket did
+  not halve in two steps (Dex-Net's soft model has ``l* = 0`` on the whole interval below
+  ``mu*``, with no slope to follow);
+* a step that would land within ``rtol / 2`` of an end is moved to ``rtol / 2`` from it, so that
+  the bracket closes from both sides,
+
+until ``hi - lo <= rtol * hi``; ``mu* = hi``, at which the grasp is force-closure.
+
+Derivatives come from the implicit function theorem on ``l*(mu*, points, normals, torsion) = 0``:
+``d mu* = -(d l*/d theta) / (d l*/d mu)``, with the envelope derivatives of the LP (no iteration
+of the root finder is differentiated).
+
+Torques are taken about the contacts' centroid and divided by their largest distance from it (the
+margin's sign depends on neither; this keeps it well scaled). The torsion of soft contacts is held
+fixed while ``mu`` moves (Dex-Net's ``pi r^2 mu`` columns: pass the torsion of the ``mu`` you care
+about).
+"""
+
+from __future__ import annotations
+
+import enum
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+
+from ._closure import _gram_rank, _gram_rank3, min_weight_value
+from ._cones import cone_edges, safe_normalize
+from ._contact import wrench_columns
+from ._constants import tolerances
+from ._lp import Status
+
+#: Relative accuracy of ``mu*`` in float64 (the final bracket's width over its upper end).
+RTOL = 1e-6
+#: ... and in float32, whose min-weight margins are accurate to about 1e-6 absolute.
+RTOL_FLOAT32 = 3e-5
+#: Root-finding steps at most (bisection alone would need ``log2(cap / (rtol mu*))``: 25 for
+#: ``mu* = 0.5`` and the default cap).
+MAX_STEPS = 40
+#: Default upper end of the search: a grasp not force-closure at this ``mu`` gets ``inf``
+#: (status ``ABOVE_CAP``). ``mu = 4`` is a cone half-angle of 76 degrees.
+DEFAULT_CAP = 4.0
+
+
+class FrictionStatus(enum.IntEnum):
+    """Outcome of a critical friction search (``int8`` per grasp)."""
+
+    #: ``mu*`` found to the relative accuracy :data:`RTOL` (float32: :data:`RTOL_FLOAT32`).
+    FOUND = 0
+    #: Not force-closure at the cap (or never: wrenches that do not span the wrench space):
+    #: ``mu* = inf``.
+    ABOVE_CAP = 1
+    #: Force-closure without friction (``l*(0) > 0``: in 3D at least 7 hard contacts): ``mu* = 0``.
+    FRICTIONLESS = 2
+    #: An LP did not converge, or the bracket was not narrowed in :data:`MAX_STEPS` steps:
+    #: ``mu*`` is the bracket's upper end, force-closure but maybe too large.
+    NOT_CONVERGED = 3
+
+
+def rtol_for(dtype) -> float:
+    """The relative accuracy of ``mu*`` in ``dtype``."""
+    return RTOL if jnp.dtype(dtype) == jnp.float64 else RTOL_FLOAT32
+
+
+def _frame(points):
+    """``(origin, scale)`` torques are taken about: the centroid, and the largest distance from it."""
+    center = jnp.mean(points, axis=0)
+    sq = jnp.max(jnp.sum((points - center) ** 2, axis=-1))
+    spread = sq > tolerances(points.dtype).tiny
+    return center, jnp.where(spread, jnp.sqrt(jnp.where(spread, sq, 1.0)), 1.0)
+
+
+def _wrenches(points, normals, mu, num_edges, contact, torsion, tangents):
+    center, scale = _frame(points)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    return wrench_columns(points, normals, edges, contact, torsion, center, scale).wrenches
+
+
+def _spans(vectors) -> jax.Array:
+    rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
+    return rank(jax.lax.stop_gradient(vectors))[0]
+
+
+def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations):
+    """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
+    (the caller checks it once: it does not depend on ``mu > 0``)."""
+    vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
+    return min_weight_value(vectors, iterations, full=True)
+
+
+def _frictionless_possible(n: int, d: int, contact: str) -> bool:
+    """Whether the wrenches at ``mu = 0`` can be numerous enough to positively span the wrench space
+    (``D + 1`` distinct columns): static, so that most grasps skip the ``mu = 0`` LP."""
+    distinct = {"hard": n, "soft": 2 * n, "dexnet-soft": 3 * n}[contact if d == 3 else "hard"]
+    return distinct >= (6 if d == 3 else 3) + 1
+
+
+def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iterations):
+    """``(mu*, status)`` by the bracketed root finding of the module docstring."""
+    dt = points.dtype
+    rtol = 0.5 * rtol_for(dt)  # mu* = hi is then within rtol / 2 + the LP's accuracy
+    n, d = points.shape
+    margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
+
+    def value_and_slope(mu):
+        (f, status), (df, _) = jax.jvp(lambda m: margin(points, normals, m, torsion), (mu,), (jnp.ones_like(mu),))
+        return f, df, status == Status.NOT_CONVERGED
+
+    spans = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents))
+    f_hi, d_hi, bad_hi = value_and_slope(cap)
+    zero = jnp.zeros((), dt)
+    if _frictionless_possible(n, d, contact):
+        f_lo, bad_lo = margin(points, normals, zero, torsion)
+        bad_lo = bad_lo == Status.NOT_CONVERGED
+        frictionless = (f_lo > 0) & _spans(_wrenches(points, normals, zero, num_edges, contact, torsion, tangents))
+        known_lo = True
+    else:
+        f_lo, bad_lo, frictionless, known_lo = zero, jnp.asarray(False), jnp.asarray(False), False
+    found = spans & (f_hi > 0) & ~frictionless
+    # (step, lo, hi, f_lo, f_hi, slope at lo, slope at hi, f_lo known, |f| of the last point, steps
+    # without progress, side kept by the last steps (Illinois), LP failure)
+    state = (
+        jnp.zeros((), jnp.int32), zero, jnp.asarray(cap, dt), jnp.minimum(f_lo, 0.0), f_hi, zero, d_hi,
+        jnp.asarray(known_lo), jnp.abs(f_hi), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32),
+        jnp.asarray(bad_hi | bad_lo),
+    )
+
+    def cond(s):
+        k, lo, hi, *_, bad = s
+        return found & ~bad & (k < MAX_STEPS) & (hi - lo > rtol * hi)
+
+    def body(s):
+        k, lo, hi, flo, fhi, dlo, dhi, known, f_last, stall, side, bad = s
+        width = hi - lo
+        inside = lambda x: (x > lo) & (x < hi) & jnp.isfinite(x)  # noqa: E731
+        newton_hi = hi - fhi / jnp.where(dhi > 0, dhi, 1.0)
+        newton_lo = lo - flo / jnp.where(dlo > 0, dlo, 1.0)
+        ok_hi = (dhi > 0) & inside(newton_hi)
+        ok_lo = known & (flo < 0) & (dlo > 0) & inside(newton_lo)
+        # Of two Newton steps, the one from the end last moved (its model is the freshest).
+        newton = jnp.where(ok_lo & (~ok_hi | (side > 0)), newton_lo, newton_hi)
+        secant = hi - fhi * width / jnp.where(fhi - flo > 0, fhi - flo, 1.0)
+        ok_secant = known & (flo < 0) & inside(secant)
+        # No model at all (nothing known below): a quarter of the way up, since mu* is more often
+        # small than near the cap.
+        fallback = jnp.where(known, lo + 0.5 * width, lo + 0.25 * width)
+        x = jnp.where(ok_hi | ok_lo, newton, jnp.where(ok_secant, secant, fallback))
+        # Two steps that neither halved the bracket nor halved |l*|: bisect.
+        x = jnp.where(stall >= 2, lo + 0.5 * width, x)
+        gap = 0.5 * rtol * hi
+        x = jnp.clip(x, lo + gap, hi - gap)
+        fx, dx, bad_x = value_and_slope(x)
+        holds = fx > 0
+        # Illinois: an end kept twice in a row has its value halved (the secant then moves it).
+        hi_kept, lo_kept = ~holds & (side < 0), holds & (side > 0)
+        lo2, flo2, dlo2 = (jnp.where(holds, lo, x), jnp.where(holds, jnp.where(lo_kept, 0.5 * flo, flo), fx),
+                           jnp.where(holds, dlo, dx))
+        hi2, fhi2, dhi2 = (jnp.where(holds, x, hi), jnp.where(holds, fx, jnp.where(hi_kept, 0.5 * fhi, fhi)),
+                           jnp.where(holds, dx, dhi))
+        side2 = jnp.where(holds, jnp.minimum(side, 0) - 1, jnp.maximum(side, 0) + 1)
+        progress = (hi2 - lo2 <= 0.5 * width) | (jnp.abs(fx) <= 0.5 * f_last)
+        stall2 = jnp.where(progress, 0, stall + 1)
+        return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, jnp.abs(fx), stall2, side2, bad | bad_x)
+
+    k, lo, hi, *_, bad = jax.lax.while_loop(cond, body, state)
+    converged = (hi - lo <= rtol * hi) & ~bad
+    mu = jnp.where(frictionless, 0.0, jnp.where(found, hi, jnp.inf))
+    status = jnp.where(
+        frictionless,
+        FrictionStatus.FRICTIONLESS,
+        jnp.where(~found, jnp.where(bad_hi, FrictionStatus.NOT_CONVERGED, FrictionStatus.ABOVE_CAP),
+                  jnp.where(converged, FrictionStatus.FOUND, FrictionStatus.NOT_CONVERGED)),
+    )
+    mu = jnp.where(~found & ~frictionless & bad_hi, jnp.inf, mu)
+    return mu.astype(dt), status.astype(jnp.int8), k
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _critical(num_edges, contact, iterations, points, normals, torsion, cap, tangents):
+    mu, status, _ = _search(points, normals, torsion, cap, num_edges=num_edges, contact=contact, tangents=tangents,
+                            iterations=iterations)
+    return mu, status
+
+
+@_critical.defjvp
+def _critical_jvp(num_edges, contact, iterations, primals, tangents_in):
+    points, normals, torsion, cap, tangents = primals
+    dp, dn, dtorsion, _, _ = tangents_in
+    mu, status = _critical(num_edges, contact, iterations, points, normals, torsion, cap, tangents)
+    ok = status == FrictionStatus.FOUND
+    at = jnp.where(ok, mu, 1.0)
+    margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
+    # l*(mu*, theta) = 0, so d mu* = -(d l/d theta . d theta) / (d l/d mu): one solve, two tangents.
+    _, lin = jax.linearize(lambda p, nrm, t, m: margin(p, nrm, m, t)[0], points, normals, torsion, at)
+    zeros = jnp.zeros_like
+    dl_theta = lin(dp, dn, dtorsion, zeros(at))
+    dl_mu = lin(zeros(points), zeros(normals), zeros(torsion), jnp.ones_like(at))
+    usable = ok & (dl_mu > jnp.finfo(mu.dtype).eps)
+    dmu = jnp.where(usable, -dl_theta / jnp.where(usable, dl_mu, 1.0), 0.0)
+    return (mu, status), (dmu.astype(mu.dtype), jnp.zeros(status.shape, jax.dtypes.float0))
+
+
+def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "hard", torsion=0.0,
+                          tangents=None, iterations=None):
+    """``(mu*, status)`` of one grasp (``points, normals: (n, d)``): the smallest friction
+    coefficient at which it is force-closure (``inf`` above ``cap``), differentiable in ``points``,
+    ``normals`` and ``torsion`` by the implicit function theorem. See the module docstring."""
+    normals = safe_normalize(normals)
+    dt = points.dtype
+    # Symbolic zero tangents: custom_jvp needs every differentiable argument to be an array.
+    return _critical(num_edges, contact, iterations, points, normals, jnp.asarray(torsion, dt),
+                     jnp.asarray(cap, dt), tangents)
