@@ -240,6 +240,76 @@ def _add_sampling(p: argparse.ArgumentParser, *, num: int) -> None:
                    help="with --scheme paper: the facet of the first contact (default: drawn from --seed)")
 
 
+def _add_gripper(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("gripper (grasp_jax.grippers)")
+    g.add_argument("--gripper", choices=("parallel-jaw",), default=None,
+                   help="sample antipodal parallel-jaw grasps (2 contacts where the jaws' closing line meets a "
+                        "mesh) and write their poses: center, axis, approach, width, jaw_status; scored as soft "
+                        "contacts (default --patch-radius: max width / 20)")
+    g.add_argument("--max-width", type=_positive_float, default=None, metavar="W",
+                   help="the gripper's largest opening, in the object's units (required with --gripper)")
+    g.add_argument("--min-width", type=_nonnegative_float, default=None, metavar="W",
+                   help="the gripper's smallest opening (default 0)")
+    g.add_argument("--collision", action="store_true",
+                   help="reject grasps whose gripper body (two finger boxes and a palm) intersects the object "
+                        "(jaw_status COLLISION; needs python-fcl)")
+    g.add_argument("--finger-size", type=_lengths, default=None, metavar="T,B,L",
+                   help="finger box thickness, breadth and length for --collision (default W/8, W/4, 0.6 W)")
+    g.add_argument("--palm-size", type=_lengths, default=None, metavar="S,B,D",
+                   help="palm box span, breadth and depth for --collision (default 1.25 W, W/4, W/4)")
+
+
+def _lengths(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated lengths like 0.01,0.02,0.05; got {text!r}") from None
+    if len(values) != 3 or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected three comma-separated lengths > 0; got {text!r}")
+    return values
+
+
+def _jaw_settings(args) -> tuple[dict, str | None, float | None]:
+    """``(run keywords, contact, torsion)`` of ``sample --gripper`` (``({}, ...)`` without it)."""
+    given = [f for f, v in (("--max-width", args.max_width), ("--min-width", args.min_width),
+                            ("--collision", args.collision), ("--finger-size", args.finger_size),
+                            ("--palm-size", args.palm_size)) if v not in (None, False)]
+    if args.gripper is None:
+        if given:
+            raise ValueError(f"{given[0]} describes a gripper: add --gripper parallel-jaw")
+        return {}, *_contact_settings(args, args.mu)
+    from .grippers import ParallelJaw
+
+    if args.max_width is None:
+        raise ValueError("--gripper parallel-jaw needs --max-width W (the largest opening, in the object's units)")
+    if args.fingers not in (2, 4) or args.scheme != "uniform" or args.first_contact is not None:
+        raise ValueError("--gripper parallel-jaw grasps have 2 contacts, sampled antipodally: leave out --fingers, "
+                         "--scheme and --first-contact")
+    args.fingers = 2
+    min_width = 0.0 if args.min_width is None else args.min_width
+    if min_width >= args.max_width:
+        raise ValueError(f"--min-width {min_width} must be smaller than --max-width {args.max_width}")
+    body = ParallelJaw.scaled(args.max_width, min_width)
+    finger = args.finger_size or (body.finger_size if args.collision else None)
+    palm = args.palm_size or (body.palm_size if args.collision else None)
+    if palm is not None and finger is None:
+        raise ValueError("--palm-size needs --collision or --finger-size")
+    gripper = ParallelJaw(args.max_width, min_width, finger_size=finger, palm_size=palm)
+    if args.collision:
+        from .grippers._contacts import require_collision_support
+
+        try:
+            require_collision_support()
+        except ImportError as e:
+            raise ValueError(str(e)) from None
+    if args.contact is None:
+        args.contact = "soft"
+        if args.torsion is None and args.patch_radius is None:
+            args.patch_radius = args.max_width / 20
+    contact, torsion = _contact_settings(args, args.mu)
+    return {"gripper": gripper, "collision": bool(args.collision)}, contact, torsion
+
+
 def _add_hole(p: argparse.ArgumentParser, *, from_file: bool = False) -> None:
     p.add_argument("--hole", type=Path, action="append", default=None, metavar="FILE.csv",
                    help="a hole of a polygon OBJECT (.csv): a CSV of x,y rows; repeat for several holes"
@@ -332,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_hole(p)
     _add_sampling(p, num=10_000)
     _add_scoring(p, from_file=False)
+    _add_gripper(p)
     _add_plot(p)
     p.set_defaults(func=_cmd_sample)
 
@@ -526,7 +597,7 @@ def _cmd_sample(args) -> int:
     if args.out is not None:
         storage.check_output_path(args.out)
     _check_plot_path(args.plot)
-    contact, torsion = _contact_settings(args, args.mu)
+    jaw, contact, torsion = _jaw_settings(args) if hasattr(args, "gripper") else ({}, *_contact_settings(args, args.mu))
     _setup(args)
     obj = _load_object(args.object, args.hole)
     summary = pipeline.run(
@@ -535,6 +606,7 @@ def _cmd_sample(args) -> int:
         torque_scale=args.torque_scale, out=args.out, progress=not args.quiet, top=max(args.top, 5),
         distributed=args.distributed, object_spec=args.object, first_contact=args.first_contact,
         object_holes=args.hole, contact=contact, torsion=torsion,
+        **jaw,
     )
     _report(args, summary, best_lines=5)
     _plot_summary(args, obj, summary, args.mu, args.edges)

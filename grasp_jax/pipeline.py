@@ -138,6 +138,7 @@ def score_stream(
     index_offset: int = 0,
     contact: str = "hard",
     torsion: float | None = None,
+    extra_fields: tuple = (),
 ) -> PipelineSummary:
     """Score a stream of chunks ``{"points", "normals"[, "force_closure"]}`` and write the results.
 
@@ -145,7 +146,9 @@ def score_stream(
     grasps the stream holds (for the progress bar); a stored ``force_closure`` in the chunks is
     compared with the new verdicts (``agree``). ``index_offset`` is added to the indices of the
     best grasps (the start of this process's slice). ``contact``, ``torsion``: the contact model,
-    as :func:`grasp_jax.evaluate`.
+    as :func:`grasp_jax.evaluate`. ``extra_fields``: columns of the chunks written as they are
+    (the jaw poses of :mod:`grasp_jax.grippers`); where the chunks have ``jaw_status``, grasps
+    whose status is not ``OK`` are not force-closure, Q 0 (critical friction ``inf``).
     """
     import jax
 
@@ -154,7 +157,7 @@ def score_stream(
     from . import storage
 
     mu = float(mu)
-    fields = list(storage.RESULT_FIELDS)
+    fields = list(storage.RESULT_FIELDS) + list(extra_fields)
     if epsilon:
         fields += ["epsilon", "volume"]
     meta = dict(metadata)
@@ -217,6 +220,11 @@ def score_stream(
             if "force_closure" in chunk:
                 have_ref = True
                 counts["agree"] += int((np.asarray(chunk["force_closure"], bool) == fc).sum())
+            if extra_fields:  # parallel-jaw poses: written as they come; failed jaws never hold
+                batch.update({name: chunk[name] for name in extra_fields})
+                if "jaw_status" in chunk:
+                    _mask_failed_jaws(batch, chunk["jaw_status"])
+                    fc, q = batch["force_closure"], batch["quality"]
             if writer is not None:
                 writer.write(batch)
             hist.add(q[fc])
@@ -257,6 +265,20 @@ def score_stream(
         epsilon_max=eps_max if epsilon else None,
         agree=counts["agree"] if have_ref else None,
     )
+
+
+def _mask_failed_jaws(batch: dict, jaw_status) -> None:
+    """Grasps whose jaw status is not ``OK``: not force-closure, Q 0, critical friction ``inf``
+    (``grasp_jax.grippers.score_grasps``'s rule), in place."""
+    from .grippers._score import mask_failed
+
+    fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
+                                batch.get("critical_status"))
+    batch.update(force_closure=fc, quality=q)
+    if mu is not None:
+        batch["critical_mu"] = mu
+    if st is not None:
+        batch["critical_status"] = st
 
 
 def _evaluate_chunk() -> int:
@@ -356,6 +378,8 @@ def run(
     object_holes=None,
     contact: str = "hard",
     torsion: float | None = None,
+    gripper=None,
+    collision: bool = False,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
@@ -384,6 +408,10 @@ def run(
             so that ``grasp-jax show`` can load it again (default ``obj.name``).
         object_holes: the CSV files of a polygon's holes (``grasp-jax sample --hole``), stored
             in the metadata as ``object_holes`` with ``object_spec``.
+        gripper: a :class:`grasp_jax.grippers.ParallelJaw`: sample antipodal parallel-jaw grasps
+            (:func:`grasp_jax.grippers.antipodal_grasps`, friction cone ``mu``) instead of free
+            contacts, ``fingers`` 2, and write their poses (``center``, ``axis``, ``approach``,
+            ``width``, ``jaw_status``) too. ``collision``: check the gripper body.
 
     Returns:
         :class:`PipelineSummary`.
@@ -430,14 +458,27 @@ def run(
     if count > 1:
         meta.update(process_index=index, process_count=count, slice=[start, stop, num])
     kwargs = {} if first_contact is None else {"first_contact": first_contact}
-    stream = sampling.iter_grasps(obj, num, fingers, seed=seed, scheme=scheme, chunk=chunk, **kwargs)
-    chunks = _Prefetch(_slice_chunks(stream, start, stop, chunk))
+    extra = ()
+    if gripper is not None:  # parallel-jaw grasps: grasp_jax.grippers
+        from . import grippers
+
+        if fingers != 2 or scheme != "uniform" or first_contact is not None or obj.dim != 3:
+            raise ValueError("parallel-jaw grasps have 2 contacts on a 3D mesh, sampled antipodally: "
+                             "leave fingers, scheme and first_contact at their defaults")
+        meta.update(scheme="antipodal", gripper=gripper.to_dict(), collision=bool(collision))
+        extra = grippers.POSE_FIELDS
+        chunks = _Prefetch(grippers._antipodal.column_chunks(obj, num, start, stop, chunk, mu=mu, gripper=gripper,
+                                                             seed=seed, collision=collision))
+    else:
+        stream = sampling.iter_grasps(obj, num, fingers, seed=seed, scheme=scheme, chunk=chunk, **kwargs)
+        chunks = _Prefetch(_slice_chunks(stream, start, stop, chunk))
     try:
         return score_stream(
             chunks, num=stop - start, fingers=fingers, dim=int(obj.dim), mu=mu, num_edges=num_edges,
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
             top=top, desc=f"{obj.name} x{fingers}", index_offset=start, contact=contact, torsion=torsion,
+            extra_fields=extra,
         )
     finally:
         chunks.close()
@@ -510,13 +551,15 @@ def score_file(
         meta.setdefault("object", str(obj.name))
         meta.setdefault("object_name", str(obj.name))
     columns = ("points", "normals") + (("force_closure",) if "force_closure" in src.fields else ())
-    chunks = _Prefetch(src.iter_chunks(columns, chunk))
+    # parallel-jaw poses are carried over, and their failed grasps stay failed
+    extra = tuple(f for f in storage.VECTOR_FIELDS + ("width", "jaw_status") if f in src.fields)
+    chunks = _Prefetch(src.iter_chunks(columns + extra, chunk))
     try:
         return score_stream(
             chunks, num=src.num, fingers=src.fingers, dim=src.dim, mu=mu, num_edges=int(num_edges),
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
-            top=top, desc=Path(path).name, contact=contact, torsion=torsion,
+            top=top, desc=Path(path).name, contact=contact, torsion=torsion, extra_fields=extra,
         )
     finally:
         chunks.close()

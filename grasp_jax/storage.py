@@ -10,6 +10,9 @@ A result file holds one row per grasp:
   ``objective`` ``(N,)`` float (the best objective reached), ``reason`` ``(N,)`` int8
   (:class:`grasp_jax.EndReason`), ``history`` and ``quality_history`` ``(N, steps)`` float (the
   objective and Q at each step);
+* from ``grasp-jax sample --gripper parallel-jaw``: the jaw poses ``center``, ``axis``, ``approach``
+  ``(N, 3)`` float, ``width`` ``(N,)`` float and ``jaw_status`` ``(N,)`` int8
+  (:class:`grasp_jax.grippers.JawStatus`);
 
 plus a metadata dictionary (object, mu, edges, fingers, seed, scheme, num, torque_test,
 grasp_jax version, date, ...).
@@ -53,11 +56,15 @@ SCALAR_FIELDS = {
     "volume": np.dtype(np.float64),
     "objective": np.dtype(np.float64),
     "reason": np.dtype(np.int8),
+    "width": np.dtype(np.float64),
+    "jaw_status": np.dtype(np.int8),
 }
 #: The fields of a scored result (``grasp-jax sample`` / ``score``), in file order.
 RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")
 #: Per-grasp fields of shape ``(fingers, d)``.
 POINT_FIELDS = ("points", "normals", "initial_points")
+#: Per-grasp fields of shape ``(d,)``: parallel-jaw poses (:mod:`grasp_jax.grippers`).
+VECTOR_FIELDS = ("center", "axis", "approach")
 #: Per-grasp fields with one value per optimizer step, shape ``(steps,)``.
 SERIES_FIELDS = {
     "history": np.dtype(np.float64),
@@ -162,6 +169,8 @@ def _field_layout(fields, fingers: int, dim: int, steps: int | None) -> tuple[di
             dtypes[name], shapes[name] = np.dtype(np.float64), (fingers, dim)
         elif name in SCALAR_FIELDS:
             dtypes[name], shapes[name] = SCALAR_FIELDS[name], ()
+        elif name in VECTOR_FIELDS:
+            dtypes[name], shapes[name] = np.dtype(np.float64), (dim,)
         elif name in SERIES_FIELDS:
             if steps is None or steps < 1:
                 raise ValueError(f"result field {name!r} needs the number of steps")

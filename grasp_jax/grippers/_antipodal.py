@@ -86,10 +86,12 @@ def _frame(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _surface(mesh):
-    """An object with ``sample_surface`` for ``mesh`` (a grasp_jax Mesh, or a bare trimesh)."""
-    if hasattr(mesh, "sample_surface") and hasattr(mesh, "mesh"):
-        return mesh
+    """An object whose ``sample_surface`` draws points on the triangles of ``mesh``'s trimesh (an
+    analytic shape's own sampler draws on the exact surface, off the triangles the rays meet)."""
     from ..objects import Mesh
+
+    if isinstance(mesh, Mesh):
+        return mesh
 
     tm = as_trimesh(mesh)
     centre = np.asarray(tm.centroid, float)
@@ -222,3 +224,17 @@ def _rechunk(blocks, chunk: int) -> Iterator[AntipodalGrasps]:
             held, size = [AntipodalGrasps(*(a[chunk:] for a in whole))], size - chunk
     if size:
         yield _concat(held)
+
+
+def column_chunks(mesh, num: int, start: int, stop: int, chunk: int, **kwargs) -> Iterator[dict]:
+    """Rows ``[start, stop)`` of :func:`iter_antipodal_grasps` as result-file column chunks
+    (:meth:`AntipodalGrasps.columns`) of at most ``chunk`` rows (the streaming pipeline's input)."""
+    pos = 0
+    for part in iter_antipodal_grasps(mesh, num, chunk=chunk, **kwargs):
+        end = pos + len(part)
+        lo, hi = max(start, pos), min(stop, end)
+        if lo < hi:
+            yield {name: a[lo - pos:hi - pos] for name, a in part.columns().items()}
+        pos = end
+        if pos >= stop:
+            break
