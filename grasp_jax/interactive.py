@@ -10,6 +10,10 @@ shows:
   (3D: drawn on the finger's side, mirrored through the contact, as :func:`grasp_jax.plotting.
   plot_grasp_3d` draws them; 2D: wedges into the object), and the central axis of the grasp's
   balancing wrench (below);
+* for parallel-jaw grasps (files with the jaw poses ``center``, ``axis``, ``approach``, ``width``
+  of ``grasp-jax sample --gripper parallel-jaw``): the gripper at each pose, two finger boxes and a
+  palm (:func:`grasp_jax.grippers.gripper_boxes`; the file's gripper, in the proportions of
+  ``ParallelJaw.scaled`` where it has no collision body);
 * hovering a contact shows the grasp's index in the file, its verdict, Q and every other column
   of the file for that grasp (any column: ``epsilon``, ``objective``, ``reason``, columns written
   by later versions such as a probability of force-closure, a critical friction or jaw poses);
@@ -62,6 +66,7 @@ _FIRST = "#c0262d"
 _OBJECT = "#9fb3cc"
 _AXIS = "#2c8a3c"
 _PATH = "#7b3fa0"
+_JAW = "#5d6d7e"
 _SERIES = ("history", "quality_history")
 
 
@@ -297,6 +302,13 @@ def _format_value(name: str, value) -> str:
                 return EndReason(int(v)).message
             except Exception:  # noqa: BLE001
                 return str(v)
+        if name == "jaw_status":
+            try:
+                from .grippers import JawStatus
+
+                return JawStatus(int(v)).name
+            except ValueError:
+                return str(v)
         if isinstance(v, float):
             return f"{v:.6g}"
         return _html.escape(str(v))
@@ -367,9 +379,39 @@ def _xyz(a, d):
     return out
 
 
+def _jaw_meshes(shown: ShownGrasps, gripper):
+    """``(k, V, 3)`` vertices and ``(T, 3)`` faces of each grasp's gripper body (finger boxes and
+    palm, :func:`grasp_jax.grippers.gripper_boxes`), or ``None`` where the columns hold no jaw
+    poses (``center``, ``axis``, ``approach``, ``width``)."""
+    cols = shown.columns
+    if shown.points.shape[-1] != 3 or not all(c in cols for c in ("center", "axis", "approach", "width")):
+        return None
+    import trimesh
+
+    from .grippers import ParallelJaw, gripper_boxes
+
+    widths = np.asarray(cols["width"], float)
+    if isinstance(gripper, dict):
+        gripper = ParallelJaw.from_dict(gripper)
+    if gripper is None:
+        gripper = ParallelJaw.scaled(float(widths.max()))
+    if not gripper.has_body:  # no collision body: draw the proportional one
+        gripper = ParallelJaw.scaled(gripper.max_width, gripper.min_width)
+    axes, approaches = _unit(cols["axis"]), _unit(cols["approach"])
+    approaches = _unit(approaches - np.sum(approaches * axes, -1, keepdims=True) * axes)
+    extents, transforms = gripper_boxes(gripper, np.asarray(cols["center"], float), axes, approaches, widths)
+    unit_box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    corners, faces = np.asarray(unit_box.vertices, float), np.asarray(unit_box.faces, np.int64)
+    local = corners[None] * extents[:, None]  # (B, 8, 3)
+    world = np.einsum("kbij,bvj->kbvi", transforms[..., :3, :3], local) + transforms[:, :, None, :3, 3]
+    boxes = len(extents)
+    tri = np.concatenate([faces + 8 * b for b in range(boxes)])
+    return world.reshape(len(widths), 8 * boxes, 3), tri
+
+
 def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8, contact: str = "hard",
                  torsion: float | None = None, title: str | None = None, max_faces: int = MAX_FACES,
-                 central_axis: bool = True):
+                 central_axis: bool = True, gripper=None):
     """A plotly figure of the grasps of ``shown`` on ``geometry`` (see the module docstring).
 
     Args:
@@ -382,6 +424,10 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
         title: the page's title.
         max_faces: meshes with more faces are decimated for display.
         central_axis: draw each grasp's balancing central axis.
+        gripper: the :class:`grasp_jax.grippers.ParallelJaw` (or its ``to_dict()``, as result files
+            store it) whose body is drawn at each grasp where ``shown`` has jaw poses (columns
+            ``center``, ``axis``, ``approach``, ``width``); default, and for a gripper without a
+            collision body: the proportions of :meth:`ParallelJaw.scaled`.
 
     Returns:
         A :class:`plotly.graph_objects.Figure`.
@@ -452,6 +498,7 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
 
     # the grasps ---------------------------------------------------------------------------------
     hover_rows = [_grasp_lines(shown, r) for r in range(k)]
+    jaws = _jaw_meshes(shown, gripper)
     for r in range(k):
         p, nr = pts[r], nrm[r]
         group = f"grasp {r}"
@@ -473,6 +520,14 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
             add(go.Scatter(**_xyz(p, 2), mode="markers+text", marker=marker, text=labels, hovertext=text,
                            hovertemplate="%{hovertext}<extra></extra>", textposition="top center",
                            name=label, showlegend=True, **common), r)
+        # the gripper: finger boxes and palm at the jaw pose
+        if jaws is not None:
+            jv, jf = jaws
+            add(go.Mesh3d(**_xyz(jv[r], 3), i=jf[:, 0].astype(np.int32), j=jf[:, 1].astype(np.int32),
+                          k=jf[:, 2].astype(np.int32), color=_JAW, opacity=0.45, flatshading=True,
+                          hovertext=["gripper<br>" + "<br>".join(hover_rows[r])] * len(jv[r]),
+                          hovertemplate="%{hovertext}<extra></extra>", name="gripper", showlegend=False,
+                          **common), r)
         # normals, outward
         seg = np.stack([p, p + 1.35 * length * nr], axis=1)
         line = _gaps(seg)
@@ -727,6 +782,6 @@ def result_page(path, page=None, *, top: int = DEFAULT_TOP, obj=None, holes=(), 
         title = f"{obj.name}: {counts} of {path.name}, mu {mu:g}, {edges} edges{extra}"
     geometry = obj if obj.dim == 2 else (obj.mesh if hasattr(obj, "mesh") else obj)
     fig = grasp_figure(geometry, shown, mu=mu, num_edges=edges, contact=meta.get("contact", "hard"),
-                       torsion=meta.get("torsion"), title=title, max_faces=max_faces)
+                       torsion=meta.get("torsion"), title=title, max_faces=max_faces, gripper=meta.get("gripper"))
     return write_page(fig, page, title=title)
 
