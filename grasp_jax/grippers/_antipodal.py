@@ -28,8 +28,14 @@ from typing import Iterator, NamedTuple
 
 import numpy as np
 
-from ._contacts import (as_trimesh, close_jaws, collision_check, contacts_from, line_hits,
-                        require_collision_support)
+from ._contacts import (
+    as_trimesh,
+    close_jaws,
+    collision_check,
+    contacts_from,
+    line_hits,
+    require_collision_support,
+)
 from ._gripper import JawStatus, ParallelJaw
 
 #: Grasps drawn from one random stream.
