@@ -559,7 +559,7 @@ def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, ta
                             iterations)
 
 
-def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None
+def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None, pivots=None
                      ) -> tuple[jax.Array, jax.Array]:
     """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
 
@@ -568,11 +568,15 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     differentiated), finite everywhere, zero where the value is a constant (0 or ``-inf``).
     ``best_effort``: see :func:`grasp_jax._lp.solve` (an unfinished LP gives its best iterate's value).
     ``full``: whether the vectors span R^D, where the caller knows it (no rank test here).
+    ``pivots``: crossover pivots to a certified vertex (default ``tolerances(dtype).crossover``:
+    none in float64, where the interior-point value is accurate to about 1e-8).
     """
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
     if not best_effort:
-        sol, _, _ = polish(lp, sol, _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations)))
+        if pivots is None:
+            pivots = _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations))
+        sol, _, _ = polish(lp, sol, pivots)
     if full is None:
         rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
         full, _ = rank(jax.lax.stop_gradient(vectors))

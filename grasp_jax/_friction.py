@@ -53,6 +53,10 @@ MAX_STEPS = 40
 #: Default upper end of the search: a grasp not force-closure at this ``mu`` gets ``inf``
 #: (status ``ABOVE_CAP``). ``mu = 4`` is a cone half-angle of 76 degrees.
 DEFAULT_CAP = 4.0
+#: Absolute accuracy of ``mu*``, as a fraction of the cap, where ``mu*`` is below it.
+ATOL = 1e-9
+#: Crossover pivots after each interior-point solve (``_crossover.polish``).
+CROSSOVER = 64
 
 
 class FrictionStatus(enum.IntEnum):
@@ -89,16 +93,27 @@ def _wrenches(points, normals, mu, num_edges, contact, torsion, tangents):
     return wrench_columns(points, normals, edges, contact, torsion, center, scale).wrenches
 
 
-def _spans(vectors) -> jax.Array:
-    rank = _gram_rank3 if vectors.shape[1] == 3 else _gram_rank
-    return rank(jax.lax.stop_gradient(vectors))[0]
+def _spans(*vectors) -> jax.Array:
+    """Whether each ``(K, D)`` set spans R^D: one batched eigendecomposition for all of them (two
+    independent LAPACK calls in one program can deadlock XLA's CPU thread pool, ``_batch``)."""
+    rank = _gram_rank3 if vectors[0].shape[1] == 3 else _gram_rank
+    return jax.vmap(lambda v: rank(v)[0])(jax.lax.stop_gradient(jnp.stack(vectors)))
+
+
+def threshold(dtype) -> float:
+    """The margin ``l*`` a grasp must exceed to count as force-closure in the search: above the
+    round-off of a certified vertex, and below what moves ``mu*`` by its tolerance (``l*`` grows
+    by about 1e-3 per unit of ``mu`` at the root in the flattest cases seen)."""
+    return 0.1 * tolerances(dtype).lp
 
 
 def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations):
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
-    (the caller checks it once: it does not depend on ``mu > 0``)."""
+    (the caller checks it once: it does not depend on ``mu > 0``). The interior-point solution is
+    carried to a certified vertex (:data:`CROSSOVER`), also in float64: there its value is off by
+    up to 1e-8 near the root, where the LP is degenerate, which is 1e-5 in ``mu*``."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
-    return min_weight_value(vectors, iterations, full=True)
+    return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER)
 
 
 def _frictionless_possible(n: int, d: int, contact: str) -> bool:
@@ -109,26 +124,32 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
 
 
 def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iterations):
-    """``(mu*, status)`` by the bracketed root finding of the module docstring."""
+    """``(mu*, status, steps)`` by the bracketed root finding of the module docstring."""
     dt = points.dtype
     rtol = 0.5 * rtol_for(dt)  # mu* = hi is then within rtol / 2 + the LP's accuracy
+    atol = ATOL * cap
+    thr = threshold(dt)
     n, d = points.shape
     margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
 
     def value_and_slope(mu):
+        # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
+        # negative without doubt.
         (f, status), (df, _) = jax.jvp(lambda m: margin(points, normals, m, torsion), (mu,), (jnp.ones_like(mu),))
-        return f, df, status == Status.NOT_CONVERGED
+        return f - thr, df, status == Status.NOT_CONVERGED
 
-    spans = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents))
-    f_hi, d_hi, bad_hi = value_and_slope(cap)
     zero = jnp.zeros((), dt)
+    f_hi, d_hi, bad_hi = value_and_slope(cap)
     if _frictionless_possible(n, d, contact):
+        spans, spans_lo = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents),
+                                 _wrenches(points, normals, zero, num_edges, contact, torsion, tangents))
         f_lo, bad_lo = margin(points, normals, zero, torsion)
-        bad_lo = bad_lo == Status.NOT_CONVERGED
-        frictionless = (f_lo > 0) & _spans(_wrenches(points, normals, zero, num_edges, contact, torsion, tangents))
+        f_lo, bad_lo = f_lo - thr, bad_lo == Status.NOT_CONVERGED
+        frictionless = (f_lo > 0) & spans_lo
         known_lo = True
     else:
-        f_lo, bad_lo, frictionless, known_lo = zero, jnp.asarray(False), jnp.asarray(False), False
+        (spans,) = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents))
+        f_lo, bad_lo, frictionless, known_lo = jnp.asarray(-thr, dt), jnp.asarray(False), jnp.asarray(False), False
     found = spans & (f_hi > 0) & ~frictionless
     # (step, lo, hi, f_lo, f_hi, slope at lo, slope at hi, f_lo known, |f| of the last point, steps
     # without progress, side kept by the last steps (Illinois), LP failure)
@@ -138,9 +159,14 @@ def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iter
         jnp.asarray(bad_hi | bad_lo),
     )
 
+    def _closed(lo, hi):
+        # relative accuracy, or mu* below atol: a grasp that holds at every mu > 0 but not at 0
+        # (Dex-Net's moment columns at mu = 0) has mu* = 0 as an infimum, never closed relatively.
+        return (hi - lo <= rtol * hi) | (hi <= atol)
+
     def cond(s):
         k, lo, hi, *_, bad = s
-        return found & ~bad & (k < MAX_STEPS) & (hi - lo > rtol * hi)
+        return found & ~bad & (k < MAX_STEPS) & ~_closed(lo, hi)
 
     def body(s):
         k, lo, hi, flo, fhi, dlo, dhi, known, f_last, stall, side, bad = s
@@ -176,7 +202,7 @@ def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iter
         return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, jnp.abs(fx), stall2, side2, bad | bad_x)
 
     k, lo, hi, *_, bad = jax.lax.while_loop(cond, body, state)
-    converged = (hi - lo <= rtol * hi) & ~bad
+    converged = _closed(lo, hi) & ~bad
     mu = jnp.where(frictionless, 0.0, jnp.where(found, hi, jnp.inf))
     status = jnp.where(
         frictionless,

@@ -99,10 +99,17 @@ def quality_highs(points, normals, mu, num_edges=8, tangents=None, contact="hard
     return (q, True) if q > 0 else (0.0, False)
 
 
+#: HiGHS options for margins near 0: its default feasibility tolerances (1e-7) and presolve report
+#: ``l* = 0`` for margins up to about 2e-8 (Dex-Net's soft columns near the critical friction),
+#: where a solution with a residual of 4e-17 has ``l* = 1.1e-8``.
+TIGHT = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10, "presolve": False}
+
+
 def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale=1.0, tangents=None,
-                     contact="hard", torsion=0.0) -> float:
+                     contact="hard", torsion=0.0, tight: bool = False) -> float:
     """``l*`` of ``max l s.t. W alpha = 0, sum alpha = 1, alpha >= l`` with HiGHS on the wrenches
-    of :func:`wrenches`; 0 when they are rank deficient, ``-inf`` when infeasible."""
+    of :func:`wrenches`; 0 when they are rank deficient, ``-inf`` when infeasible. ``tight``: with
+    :data:`TIGHT` options (slower), for margins that must be resolved near 0."""
     W = wrenches(points, normals, mu, num_edges, origin, torque_scale, tangents, contact, torsion).T
     D, K = W.shape
     if np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, np.abs(W).max())) < D:
@@ -113,11 +120,40 @@ def min_weight_highs(points, normals, mu, num_edges=8, origin=None, torque_scale
     A_eq = np.vstack([np.hstack([W, np.zeros((D, 1))]), np.concatenate([np.ones(K), [0.0]])])
     b_eq = np.concatenate([np.zeros(D), [1.0]])
     A_ub = np.hstack([-np.eye(K), np.ones((K, 1))])
-    res = linprog(c, A_ub=A_ub, b_ub=np.zeros(K), A_eq=A_eq, b_eq=b_eq,
-                  bounds=[(None, None)] * (K + 1), method="highs")
+    for options in ([TIGHT, {**TIGHT, "presolve": True}, None] if tight else [None]):
+        # (without presolve, HiGHS stops on a numerical difficulty now and then: try the next)
+        res = linprog(c, A_ub=A_ub, b_ub=np.zeros(K), A_eq=A_eq, b_eq=b_eq,
+                      bounds=[(None, None)] * (K + 1), method="highs", options=options)
+        if res.status in (0, 2):
+            break
     if res.status == 2:
         return -np.inf
     return float(-res.fun)
+
+
+def critical_friction_highs(points, normals, num_edges=8, contact="hard", torsion=0.0, cap=4.0,
+                            threshold=1e-10, rtol=1e-9) -> float:
+    """The smallest ``mu`` at which ``l* > threshold`` (:func:`min_weight_highs`, tight, torques
+    about the centroid over the largest distance from it) by plain bisection of ``[0, cap]`` to
+    ``rtol``: ``inf`` when not force-closure at ``cap``, 0 when force-closure at 0; a grasp that
+    holds at every ``mu > 0`` but not at 0 ends below ``1e-12``."""
+    points, normals = np.asarray(points, float), np.asarray(normals, float)
+    center = points.mean(0)
+    scale = np.sqrt(((points - center) ** 2).sum(1).max())
+
+    def holds(mu):
+        return min_weight_highs(points, normals, mu, num_edges, center, scale, contact=contact, torsion=torsion,
+                                tight=True) > threshold
+
+    if not holds(cap):
+        return np.inf
+    if holds(0.0):
+        return 0.0
+    lo, hi = 0.0, float(cap)
+    while hi - lo > rtol * hi and hi > 1e-12:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if holds(mid) else (mid, hi)
+    return hi
 
 
 def torque_span_highs(points, normals, mu, num_edges=8, tangents=None, contact="hard", torsion=0.0) -> bool:
