@@ -326,8 +326,13 @@ def _bind(func: Callable, **kwargs) -> _Bound:
 
 
 def _critical_single(points, normals, tangents, shared, *, num_edges, contact):
-    torsion, cap = shared
-    return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents)
+    torsion, cap, steps, iterations = shared  # traced: both passes run one compiled program
+    return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
+                                           steps)
+
+
+def _search_open(out) -> jax.Array:
+    return out[1] == _friction.FrictionStatus.NOT_CONVERGED
 
 
 def critical_friction(
@@ -370,8 +375,17 @@ def critical_friction(
         scope = scope_for(points.dtype, traced=True)
     fn = _bind(_critical_single, num_edges=num_edges, contact=contact)
     with scope:
-        shared = (jnp.asarray(torsion, points.dtype), jnp.asarray(cap, points.dtype))
-        mu, status = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress)
+        torsion, cap = jnp.asarray(torsion, points.dtype), jnp.asarray(cap, points.dtype)
+        # A first pass of few steps; the searches it leaves open again with every step
+        # (``_friction.FIRST_STEPS``). Every step has the full interior-point budget: after a short
+        # one, the crossover certified a vertex whose margin was 1e-8 too high where it is 0.
+        columns = _friction.min_weight_columns(points.shape[-2], points.shape[-1], contact, num_edges)
+        full = (np.int32(_friction.MAX_STEPS), np.int32(default_iterations(columns)))
+        traced = is_traced(points)
+        first = full if traced else (np.int32(_friction.FIRST_STEPS), full[1])
+        retry = Retry((torsion, cap, *full), _search_open)
+        mu, status = map_grasps(fn, (points, normals, tangents), (torsion, cap, *first), batch, progress=progress,
+                                retry=None if traced else retry)
     if not is_traced(status):
         stuck = int(np.sum(np.asarray(status) == _friction.FrictionStatus.NOT_CONVERGED))
         if stuck:

@@ -37,10 +37,10 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from ._closure import _gram_rank, _gram_rank3, min_weight_value
+from ._closure import _gram_rank, _gram_rank3, min_weight_lp, min_weight_value
 from ._cones import cone_edges, safe_normalize
-from ._contact import wrench_columns
-from ._constants import tolerances
+from ._contact import columns_per_contact, wrench_columns
+from ._constants import default_iterations, tolerances
 from ._lp import Status
 
 #: Relative accuracy of ``mu*`` in float64 (the final bracket's width over its upper end).
@@ -50,13 +50,23 @@ RTOL_FLOAT32 = 3e-5
 #: Root-finding steps at most (bisection alone would need ``log2(cap / (rtol mu*))``: 25 for
 #: ``mu* = 0.5`` and the default cap).
 MAX_STEPS = 40
+#: Steps of the first pass over a batch (``_batch.Retry``): a vmapped search runs until the slowest
+#: grasp of its block has converged; 90% of grasps need at most 10 steps, a few 35, so the first
+#: pass stops at this many and the grasps it leaves open are searched again with :data:`MAX_STEPS`.
+FIRST_STEPS = 12
 #: Default upper end of the search: a grasp not force-closure at this ``mu`` gets ``inf``
 #: (status ``ABOVE_CAP``). ``mu = 4`` is a cone half-angle of 76 degrees.
 DEFAULT_CAP = 4.0
 #: Absolute accuracy of ``mu*``, as a fraction of the cap, where ``mu*`` is below it.
 ATOL = 1e-9
-#: Crossover pivots after each interior-point solve (``_crossover.polish``).
-CROSSOVER = 64
+#: Longest step back from the root of ``l* = threshold`` to that of ``l* = 0``, relative to ``mu*``.
+BACK = 1e-3
+#: Crossover pivots after each interior-point solve (``_crossover.polish``): none. Measured against
+#: bisection of HiGHS (tight tolerances) on 1,200 grasps: the crossover's feasibility tolerance
+#: (1e-6, set for float32) certified vertices whose margin was 1e-8 too high where ``l*`` is 0 on an
+#: interval of ``mu`` (a hard 3-finger cylinder grasp: ``mu*`` 1.596 for 2.110), and cost 2.5x the
+#: throughput of two soft contacts.
+CROSSOVER = 0
 
 
 class FrictionStatus(enum.IntEnum):
@@ -102,16 +112,17 @@ def _spans(*vectors) -> jax.Array:
 
 def threshold(dtype) -> float:
     """The margin ``l*`` a grasp must exceed to count as force-closure in the search: above the
-    round-off of a certified vertex, and below what moves ``mu*`` by its tolerance (``l*`` grows
-    by about 1e-3 per unit of ``mu`` at the root in the flattest cases seen)."""
-    return 0.1 * tolerances(dtype).lp
+    round-off of a certified vertex (up to 3e-9 seen where ``l*`` is 0 on a whole interval of
+    ``mu``: a wrench cone that holds a line for every ``mu`` there), so that such an interval is
+    below ``mu*``. The root of ``l* = threshold`` is then carried back to ``l* = 0`` along the slope
+    (:func:`_search`), which removes the threshold's bias where ``l*`` rises slowly."""
+    return 10.0 * tolerances(dtype).lp
 
 
 def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations):
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
-    (the caller checks it once: it does not depend on ``mu > 0``). The interior-point solution is
-    carried to a certified vertex (:data:`CROSSOVER`), also in float64: there its value is off by
-    up to 1e-8 near the root, where the LP is degenerate, which is 1e-5 in ``mu*``."""
+    (the caller checks it once: it does not depend on ``mu > 0``). The interior-point value, good
+    to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`)."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
     return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER)
 
@@ -123,7 +134,7 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
     return distinct >= (6 if d == 3 else 3) + 1
 
 
-def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iterations):
+def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contact, tangents, iterations):
     """``(mu*, status, steps)`` by the bracketed root finding of the module docstring."""
     dt = points.dtype
     rtol = 0.5 * rtol_for(dt)  # mu* = hi is then within rtol / 2 + the LP's accuracy
@@ -166,7 +177,7 @@ def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iter
 
     def cond(s):
         k, lo, hi, *_, bad = s
-        return found & ~bad & (k < MAX_STEPS) & ~_closed(lo, hi)
+        return found & ~bad & (k < steps) & ~_closed(lo, hi)
 
     def body(s):
         k, lo, hi, flo, fhi, dlo, dhi, known, f_last, stall, side, bad = s
@@ -201,8 +212,12 @@ def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iter
         stall2 = jnp.where(progress, 0, stall + 1)
         return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, jnp.abs(fx), stall2, side2, bad | bad_x)
 
-    k, lo, hi, *_, bad = jax.lax.while_loop(cond, body, state)
+    k, lo, hi, _, f_hi, _, d_hi, *_, bad = jax.lax.while_loop(cond, body, state)
     converged = _closed(lo, hi) & ~bad
+    # l* = thr + f_hi at hi: the root of l* = 0 one Newton step back, where that step is short (the
+    # slope is not ~0 there); the grasp holds for every mu above it.
+    back = (f_hi + thr) / jnp.where(d_hi > 0, d_hi, 1.0)
+    hi = jnp.where((d_hi > 0) & (back >= 0) & (back <= BACK * hi), hi - back, hi)
     mu = jnp.where(frictionless, 0.0, jnp.where(found, hi, jnp.inf))
     status = jnp.where(
         frictionless,
@@ -214,21 +229,22 @@ def _search(points, normals, torsion, cap, *, num_edges, contact, tangents, iter
     return mu.astype(dt), status.astype(jnp.int8), k
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def _critical(num_edges, contact, iterations, points, normals, torsion, cap, tangents):
-    mu, status, _ = _search(points, normals, torsion, cap, num_edges=num_edges, contact=contact, tangents=tangents,
-                            iterations=iterations)
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _critical(num_edges, contact, points, normals, torsion, cap, steps, iterations, tangents):
+    mu, status, _ = _search(points, normals, torsion, cap, steps, num_edges=num_edges, contact=contact,
+                            tangents=tangents, iterations=iterations)
     return mu, status
 
 
 @_critical.defjvp
-def _critical_jvp(num_edges, contact, iterations, primals, tangents_in):
-    points, normals, torsion, cap, tangents = primals
-    dp, dn, dtorsion, _, _ = tangents_in
-    mu, status = _critical(num_edges, contact, iterations, points, normals, torsion, cap, tangents)
+def _critical_jvp(num_edges, contact, primals, tangents_in):
+    points, normals, torsion, cap, steps, iterations, tangents = primals
+    dp, dn, dtorsion, *_ = tangents_in
+    mu, status = _critical(num_edges, contact, points, normals, torsion, cap, steps, iterations, tangents)
     ok = status == FrictionStatus.FOUND
     at = jnp.where(ok, mu, 1.0)
-    margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
+    # (the full interior-point budget: the search's may have been a short first pass)
+    margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=None)
     # l*(mu*, theta) = 0, so d mu* = -(d l/d theta . d theta) / (d l/d mu): one solve, two tangents.
     _, lin = jax.linearize(lambda p, nrm, t, m: margin(p, nrm, m, t)[0], points, normals, torsion, at)
     zeros = jnp.zeros_like
@@ -240,12 +256,23 @@ def _critical_jvp(num_edges, contact, iterations, primals, tangents_in):
 
 
 def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "hard", torsion=0.0,
-                          tangents=None, iterations=None):
+                          tangents=None, iterations=None, steps=MAX_STEPS):
     """``(mu*, status)`` of one grasp (``points, normals: (n, d)``): the smallest friction
     coefficient at which it is force-closure (``inf`` above ``cap``), differentiable in ``points``,
-    ``normals`` and ``torsion`` by the implicit function theorem. See the module docstring."""
+    ``normals`` and ``torsion`` by the implicit function theorem. ``steps``: most root-finding steps,
+    ``iterations``: interior-point iterations per step (default the full budget; both may be
+    traced); a search left open after them has status ``NOT_CONVERGED``. See the module
+    docstring."""
     normals = safe_normalize(normals)
     dt = points.dtype
     # Symbolic zero tangents: custom_jvp needs every differentiable argument to be an array.
-    return _critical(num_edges, contact, iterations, points, normals, jnp.asarray(torsion, dt),
-                     jnp.asarray(cap, dt), tangents)
+    if iterations is None:
+        iterations = default_iterations(min_weight_columns(points.shape[0], points.shape[1], contact, num_edges))
+    return _critical(num_edges, contact, points, normals, jnp.asarray(torsion, dt), jnp.asarray(cap, dt),
+                     jnp.asarray(steps, jnp.int32), jnp.asarray(iterations, jnp.int32), tangents)
+
+
+def min_weight_columns(n: int, d: int, contact: str, num_edges: int) -> int:
+    """Columns of the min-weight LP of a grasp (its ``K`` weights, the margin and the slacks)."""
+    k = n * (2 if d == 2 else columns_per_contact(contact, num_edges))
+    return min_weight_lp(jnp.zeros((k, d + (1 if d == 2 else 3)))).A.shape[1]
