@@ -58,6 +58,9 @@ SCALAR_FIELDS = {
     "reason": np.dtype(np.int8),
     "width": np.dtype(np.float64),
     "jaw_status": np.dtype(np.int8),
+    "critical_mu": np.dtype(np.float64),
+    "critical_status": np.dtype(np.int8),
+    "friction_label": np.dtype(np.float64),
 }
 #: The fields of a scored result (``grasp-jax sample`` / ``score``), in file order.
 RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")

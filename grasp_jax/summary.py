@@ -127,6 +127,8 @@ class PipelineSummary:
         epsilon_disagree: grasps where ``epsilon > EPSILON_ZERO`` and ``force_closure`` disagree.
         epsilon_max: the largest epsilon.
         agree: with :func:`score_file` on a file with stored verdicts, how many match.
+        critical_percentiles: percentiles of the critical friction over all grasps (those above
+            the cap count as the cap), where it was computed.
         best: the best force-closure grasps (indices count from the start of the whole stream, also
             in a multi-process run).
         output: the file written, if any.
@@ -151,6 +153,7 @@ class PipelineSummary:
     epsilon_disagree: int | None = None
     epsilon_max: float | None = None
     agree: int | None = None
+    critical_percentiles: dict | None = None
 
     @property
     def force_closure_rate(self) -> float:
@@ -213,6 +216,10 @@ class PipelineSummary:
             listed = ", ".join(f"#{int(i)} Q {float(q):.4f}" for i, q in
                                zip(self.best.index[:k], self.best.quality[:k]))
             lines.append(f"best grasp{'s' if k > 1 else ' '}    {listed}")
+        if self.critical_percentiles is not None:
+            pct = "  ".join(f"p{p} {q:.3f}" for p, q in self.critical_percentiles.items())
+            lines.append(f"critical mu    {pct}  (all grasps; above the cap {m.get('critical_friction_cap', 4):g} "
+                         "counted at it)")
         if self.epsilon_positive is not None:
             origin = ", ".join(f"{0.0 if abs(v) < 1e-12 else v:.3g}" for v in m.get("epsilon_origin", ()))
             lines.append(

@@ -185,3 +185,30 @@ def test_sphere_antipodal_soft_pair_needs_the_angle_s_tangent():
     # half-angle atan(mu cos(pi/m)); the line's tangential direction decides how far in it is
     need = np.tan(theta / 2)
     assert need * 0.998 <= float(mu) <= need / np.cos(np.pi / 8) * 1.001
+
+
+def test_cli_critical_friction_columns(monkeypatch, tmp_path, capsys):
+    import signal
+
+    from grasp_jax import cli, storage
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.chdir(tmp_path)
+    try:
+        rc = cli.main(["sample", "box", "--fingers", "3", "--num", "200", "--critical-friction", "--out", "a.npz"])
+        out = capsys.readouterr().out
+        assert rc == 0 and "critical mu" in out
+        arrays, meta = storage.read_results(tmp_path / "a.npz")
+        assert arrays["critical_mu"].shape == (200,) and arrays["critical_status"].dtype == np.int8
+        mu_star = arrays["critical_mu"]
+        clear = np.abs(mu_star - meta["mu"]) > 1e-4
+        np.testing.assert_array_equal(arrays["force_closure"][clear], mu_star[clear] < meta["mu"])
+        np.testing.assert_array_equal(arrays["friction_label"], gj.friction_label(mu_star))
+        # score recomputes them from the stored contacts; without the flag there are none
+        assert cli.main(["score", "a.npz", "--critical-friction", "--out", "b.npz", "-q"]) == 0
+        again, _ = storage.read_results(tmp_path / "b.npz")
+        np.testing.assert_allclose(again["critical_mu"], mu_star, rtol=1e-9)
+        assert cli.main(["sample", "box", "--fingers", "3", "--num", "50", "--out", "c.npz", "-q"]) == 0
+        assert "critical_mu" not in storage.read_results(tmp_path / "c.npz")[0]
+    finally:
+        signal.signal(signal.SIGTERM, before)

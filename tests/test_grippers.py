@@ -306,6 +306,14 @@ def test_cli_sample_parallel_jaw_writes_the_columns(in_process, tmp_path, capsys
     assert arrays["force_closure"].any()
     failed = arrays["jaw_status"] != JawStatus.OK
     assert not arrays["force_closure"][failed].any() and (arrays["quality"][failed] == 0).all()
+    # the critical friction, on by default with a gripper: failed jaws need infinite friction, and a
+    # grasp holds at the run's mu exactly when it needs less (where clear of it)
+    assert np.isinf(arrays["critical_mu"][failed]).all()
+    assert (arrays["critical_status"][failed] == gj.FrictionStatus.ABOVE_CAP).all()
+    mu_star = arrays["critical_mu"]
+    clear = np.abs(mu_star - 0.5) > 1e-4
+    np.testing.assert_array_equal(arrays["force_closure"][clear], mu_star[clear] < 0.5)
+    np.testing.assert_array_equal(arrays["friction_label"], gj.friction_label(mu_star))
     # the file's poses give its contacts again
     from grasp_jax import objects
 
