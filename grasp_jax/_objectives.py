@@ -29,6 +29,12 @@ solution; no iteration is differentiated), and see both conditions:
     ``c_1``; the margin FRoGGeR (Li et al. 2023) optimizes.
 ``"signed_q"``
     ``delta*`` alone (equilibrium only; kept to show why it is not enough).
+``"friction"``
+    ``-mu*``, the critical friction (``grasp_jax._friction``; implicit-function gradients): grasps
+    that need the least friction, whatever ``mu`` is. Where the grasp is not force-closure at the
+    cap :data:`FRICTION_CAP`, ``-cap + K l*(cap)`` (the min-weight margin at the cap, <= 0 there),
+    which is continuous with ``-mu*`` as ``mu*`` reaches the cap and pulls towards it. About 10 LPs
+    per grasp and step instead of 2.
 ``"dfc"``, ``"dfc_eig"``
     The energies of DexGraspNet / DFC (Liu et al. 2021), negated so that larger is better:
     ``-||sum_i [n_i; p_i x n_i]||^2`` (unit normal forces, no friction), points about the object's
@@ -55,7 +61,10 @@ from ._validate import check_scalar
 from ._wrench import cross
 
 #: Objectives :func:`objective_one` knows, in the order of the module docstring.
-OBJECTIVES: tuple[str, ...] = ("closure", "closure_any", "min_weight", "signed_q", "dfc", "dfc_eig")
+OBJECTIVES: tuple[str, ...] = ("closure", "closure_any", "min_weight", "signed_q", "friction", "dfc", "dfc_eig")
+
+#: Largest friction coefficient the ``"friction"`` objective searches (``_friction.DEFAULT_CAP``).
+FRICTION_CAP = 4.0
 
 #: Weight of the torque margin in ``"closure"``. ``T`` lies in ``(-inf, 1]`` (3D) and Q in
 #: ``[0, sqrt(1 + mu^2)]``; with 4 the torque term binds on few optimized grasps (it is reported
@@ -172,9 +181,27 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
         normals = safe_normalize(normals)
         edges = cone_edges(normals, mu, num_edges)
         return signed_quality(about_first(points, normals, edges, contact, torsion), edges, iterations, best_effort), {}
+    if kind == "friction":
+        return friction_objective(points, normals, num_edges, center, scale, iterations, best_effort, contact,
+                                  torsion), {}
     if kind in ("dfc", "dfc_eig"):
         return -dfc_energy(points, normals, center, scale, eig=kind == "dfc_eig"), {}
     raise ValueError(f"objective must be one of {OBJECTIVES}; got {kind!r}")
+
+
+def friction_objective(points, normals, num_edges, center, scale, iterations=None, best_effort=False,
+                       contact="hard", torsion=0.0) -> jax.Array:
+    """``-mu*`` where the grasp is force-closure at :data:`FRICTION_CAP`, else ``-cap + K l*(cap)``
+    (see the module docstring). The search itself always has the full interior-point budget."""
+    from ._friction import FrictionStatus, critical_friction_one
+
+    points = jnp.asarray(points)
+    cap = jnp.asarray(FRICTION_CAP, points.dtype)
+    mu_star, status = critical_friction_one(points, normals, cap, num_edges, contact, torsion)
+    margin = min_weight_margin(points, normals, cap, num_edges, center, scale, iterations, best_effort, contact,
+                               torsion)
+    found = status != FrictionStatus.ABOVE_CAP
+    return jnp.where(found, -jnp.where(found, mu_star, 0.0), -cap + jnp.minimum(margin, 0.0))
 
 
 def is_positive(value, dtype) -> jax.Array:

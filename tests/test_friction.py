@@ -212,3 +212,19 @@ def test_cli_critical_friction_columns(monkeypatch, tmp_path, capsys):
         assert "critical_mu" not in storage.read_results(tmp_path / "c.npz")[0]
     finally:
         signal.signal(signal.SIGTERM, before)
+
+
+def test_optimizer_objective_lowers_the_friction_needed():
+    from grasp_jax import objects
+
+    box = objects.load("box")
+    result = gj.optimize(box, 1, fingers=3, mu=0.5, starts=8, steps=12, objective="friction")
+    history = np.asarray(result.history)
+    assert np.all(np.isfinite(history))
+    # the objective is -mu* (or below -cap where not force-closure at the cap); the best iterate
+    # needs no more friction than the start, and most need less
+    assert np.all(np.asarray(result.objective) >= history[:, 0] - 1e-12)
+    assert np.mean(np.asarray(result.objective) > history[:, 0] + 1e-3) >= 0.5
+    need, _ = gj.critical_friction(result.points, result.normals)
+    found = np.asarray(result.objective) > -4.0
+    np.testing.assert_allclose(-np.asarray(need)[found], np.asarray(result.objective)[found], rtol=1e-5, atol=1e-6)
