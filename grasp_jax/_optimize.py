@@ -108,6 +108,9 @@ class OptimizeResult:
             (``iterations``); one left unfinished gives its best iterate's Q.
         reason: ``(S,) int8`` :class:`EndReason`.
         initial_points: ``(S, n, d)`` the starts, on the surface.
+        path: ``(S, F, n, d)`` the contacts' positions (on the surface) at the start and after each
+            compiled segment of steps (``F - 1`` of them, :data:`SEGMENTS` at most; the last is the
+            final iterate, which need not be the best): for drawing where the contacts went.
         objective_name, normal_kind: static strings.
         steps, seconds: the budget and the wall time.
         scale: the object's radius.
@@ -122,6 +125,7 @@ class OptimizeResult:
     quality_history: jax.Array | None
     reason: jax.Array
     initial_points: jax.Array
+    path: jax.Array | None = None
     objective_name: str = dataclasses.field(metadata={"static": True}, default="closure")
     normal_kind: str = dataclasses.field(metadata={"static": True}, default="smooth")
     steps: int = dataclasses.field(metadata={"static": True}, default=0)
@@ -427,13 +431,13 @@ def optimize(
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
         result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
                       contact, torsion)
-        points, normals_out, best_value, history, qualities = result
+        points, normals_out, best_value, history, qualities, path = result
         evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges, contact=contact,
                               torsion=None if contact == "hard" else torsion)
     reason = _end_reasons(np.asarray(evaluation.force_closure), history)
     return OptimizeResult(
         points=points, normals=normals_out, evaluation=evaluation, objective=best_value, history=history,
-        quality_history=qualities, reason=reason, initial_points=initial_points,
+        quality_history=qualities, reason=reason, initial_points=initial_points, path=path,
         objective_name=objective, normal_kind=surface.normal_kind, steps=steps,
         seconds=time.perf_counter() - t0, scale=float(surface.scale),
         learning_rate=None if user_optimizer else float(learning_rate),
@@ -457,6 +461,8 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
                length=length, total=steps, monitor=monitor, iterations=budget, contact=contact)
     mu = (jnp.asarray(mu, dtype), jnp.asarray(torsion, dtype))
     values, qualities = [], []
+    embed = jax.vmap(jax.vmap(surface.embed))
+    path = [np.asarray(embed(contacts)[0])]
     segments = range(0, steps, length)
     bar = None
     if progress:
@@ -469,6 +475,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
         leaves = list(leaves)
         values.append(np.asarray(vals))
         qualities.append(np.asarray(qs))
+        path.append(np.asarray(embed(jax.tree_util.tree_unflatten(treedef, leaves)[0])[0]))
         if bar is not None:
             bar.update(min(length, steps - offset))
             best = np.asarray(leaves[-2])
@@ -481,7 +488,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     history = np.concatenate(values, axis=1)[:, :steps]
     track = monitor or kind in _CLOSURE_KINDS
     qualities = np.concatenate(qualities, axis=1)[:, :steps] if track else None
-    return np.asarray(points), np.asarray(normals), np.asarray(best_value), history, qualities
+    return np.asarray(points), np.asarray(normals), np.asarray(best_value), history, qualities, np.stack(path, axis=1)
 
 
 def _end_reasons(force_closure: np.ndarray, history: np.ndarray) -> np.ndarray:

@@ -823,9 +823,12 @@ def _write_optimized(path: Path, result, meta: dict) -> Path:
     }
     if result.quality_history is not None:
         batch["quality_history"] = np.asarray(result.quality_history, float)
+    if result.path is not None:
+        batch["path"] = np.asarray(result.path, float)
     fields = [*storage.RESULT_FIELDS, *(f for f in batch if f not in storage.RESULT_FIELDS)]
     with storage.open_writer(path, meta, fields, fingers=batch["points"].shape[1], dim=batch["points"].shape[2],
-                             steps=batch["history"].shape[1]) as w:
+                             steps=batch["history"].shape[1],
+                             frames=batch["path"].shape[1] if "path" in batch else None) as w:
         w.write(batch)
     return w.path
 

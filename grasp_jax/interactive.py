@@ -19,8 +19,9 @@ shows:
   by later versions such as a probability of force-closure, a critical friction or jaw poses);
 * a table of the drawn grasps, a histogram of Q over the whole file (force-closure grasps), and
   for an optimizer result Q against step for the drawn grasps and the contacts' paths (from
-  ``initial_points`` to ``points``, or over every step where the file has a per-step field of
-  shape ``(N, steps, n, d)``).
+  ``initial_points`` to ``points``, or through the positions of a field of shape
+  ``(N, frames, n, d)`` such as ``path``, which ``grasp-jax optimize --out`` writes: the contacts
+  at the start and after each compiled segment of steps).
 
 **The central axis drawn** is that of Proposition 1 of the paper: at the optimum of the quality LP
 (eq. 18-20, solved again here by HiGHS on :mod:`grasp_jax.reference`'s wrenches), the wrench
@@ -578,7 +579,9 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
             path, source = paths
             track = np.transpose(path[r], (1, 0, 2))  # (n, S, d)
             steps = track.shape[1]
-            what = "start to end" if source == "initial_points" else f"{steps} steps ({source})"
+            what = ("start to end" if source == "initial_points" else
+                    f"{steps} positions from the start to the last step (column {source!r}; the grasp drawn is "
+                    "the best iterate)")
             tr = (go.Scatter3d if d == 3 else go.Scatter)(
                 **_xyz(_gaps(track), d), mode="lines", line=dict(color=_PATH, width=3 if d == 3 else 1.5),
                 hovertext=[f"path of a contact, {what}<br>{hover_rows[r][0]}"] * (n * (steps + 1)),

@@ -68,6 +68,8 @@ RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")
 POINT_FIELDS = ("points", "normals", "initial_points")
 #: Per-grasp fields of shape ``(d,)``: parallel-jaw poses (:mod:`grasp_jax.grippers`).
 VECTOR_FIELDS = ("center", "axis", "approach")
+#: Per-grasp fields of shape ``(frames, fingers, d)``: the optimizer's contact paths.
+PATH_FIELDS = ("path",)
 #: Per-grasp fields with one value per optimizer step, shape ``(steps,)``.
 SERIES_FIELDS = {
     "history": np.dtype(np.float64),
@@ -164,12 +166,17 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def _field_layout(fields, fingers: int, dim: int, steps: int | None) -> tuple[dict, dict]:
+def _field_layout(fields, fingers: int, dim: int, steps: int | None, frames: int | None = None
+                  ) -> tuple[dict, dict]:
     """``(dtypes, row shapes)`` of the named fields."""
     dtypes, shapes = {}, {}
     for name in fields:
         if name in POINT_FIELDS:
             dtypes[name], shapes[name] = np.dtype(np.float64), (fingers, dim)
+        elif name in PATH_FIELDS:
+            if frames is None or frames < 1:
+                raise ValueError(f"result field {name!r} needs the number of frames")
+            dtypes[name], shapes[name] = np.dtype(np.float64), (int(frames), fingers, dim)
         elif name in SCALAR_FIELDS:
             dtypes[name], shapes[name] = SCALAR_FIELDS[name], ()
         elif name in VECTOR_FIELDS:
@@ -190,12 +197,13 @@ class ResultWriter:
     exception (including ``KeyboardInterrupt``) removes every temporary file and publishes nothing.
     """
 
-    def __init__(self, path, metadata: Mapping, fields, fingers: int, dim: int, steps: int | None = None):
+    def __init__(self, path, metadata: Mapping, fields, fingers: int, dim: int, steps: int | None = None,
+                 frames: int | None = None):
         self.path = check_output_path(path)
         self.directory = self.path.parent if str(self.path.parent) else Path(".")
         self.metadata = dict(metadata)
         self.fingers, self.dim = int(fingers), int(dim)
-        self.dtypes, self.shapes = _field_layout(fields, self.fingers, self.dim, steps)
+        self.dtypes, self.shapes = _field_layout(fields, self.fingers, self.dim, steps, frames)
         self.count = 0
         self._done = False
 
@@ -269,8 +277,8 @@ class ResultWriter:
 class NpzWriter(ResultWriter):
     """Streams each field to a scratch file; :meth:`close` assembles an uncompressed ``.npz``."""
 
-    def __init__(self, path, metadata, fields, fingers, dim, steps=None):
-        super().__init__(path, metadata, fields, fingers, dim, steps)
+    def __init__(self, path, metadata, fields, fingers, dim, steps=None, frames=None):
+        super().__init__(path, metadata, fields, fingers, dim, steps, frames)
         try:
             self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.",
                                                   suffix=".tmp"))
@@ -317,12 +325,6 @@ class NpzWriter(ResultWriter):
             self._archive = None
 
 
-def _nested_list_type(fingers: int, dim: int):
-    import pyarrow as pa
-
-    return pa.list_(pa.list_(pa.float64(), dim), fingers)
-
-
 def _fixed_row_shape(typ) -> tuple[int, ...]:
     """The row shape of a (nested) ``fixed_size_list`` Arrow type; ``()`` for anything else."""
     import pyarrow as pa
@@ -337,21 +339,19 @@ def _fixed_row_shape(typ) -> tuple[int, ...]:
 class ParquetWriter(ResultWriter):
     """One row group per chunk, written to a temporary file that :meth:`close` renames."""
 
-    def __init__(self, path, metadata, fields, fingers, dim, steps=None):
+    def __init__(self, path, metadata, fields, fingers, dim, steps=None, frames=None):
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        super().__init__(path, metadata, fields, fingers, dim, steps)
+        super().__init__(path, metadata, fields, fingers, dim, steps, frames)
         self._pa = pa
         columns = []
         for name, dtype in self.dtypes.items():
-            if name in POINT_FIELDS:
-                columns.append(pa.field(name, _nested_list_type(self.fingers, self.dim), nullable=False))
-            elif self.shapes[name]:
-                columns.append(pa.field(name, pa.list_(pa.from_numpy_dtype(dtype), self.shapes[name][0]),
-                                        nullable=False))
-            else:
-                columns.append(pa.field(name, pa.from_numpy_dtype(dtype), nullable=False))
+            # a row of shape (a, b, ...) is a fixed-size list of fixed-size lists ...
+            typ = pa.from_numpy_dtype(dtype)
+            for size in reversed(self.shapes[name]):
+                typ = pa.list_(typ, size)
+            columns.append(pa.field(name, typ, nullable=False))
         self.schema = pa.schema(columns, metadata={PARQUET_KEY: json.dumps(self.metadata).encode()})
         fd, self._tmp = self._temp_file()
         self._file = os.fdopen(fd, "wb")
@@ -362,13 +362,10 @@ class ParquetWriter(ResultWriter):
         cols = []
         for name in self.dtypes:
             a = arrays[name]
-            if name in POINT_FIELDS:
-                inner = pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), self.dim)
-                cols.append(pa.FixedSizeListArray.from_arrays(inner, self.fingers))
-            elif self.shapes[name]:
-                cols.append(pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), self.shapes[name][0]))
-            else:
-                cols.append(pa.array(a))
+            column = pa.array(a.reshape(-1))
+            for size in reversed(self.shapes[name]):
+                column = pa.FixedSizeListArray.from_arrays(column, size)
+            cols.append(column)
         self._writer.write_batch(pa.RecordBatch.from_arrays(cols, schema=self.schema))
 
     def _finish(self):
@@ -397,7 +394,7 @@ class ParquetWriter(ResultWriter):
 
 
 def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int,
-                steps: int | None = None) -> ResultWriter:
+                steps: int | None = None, frames: int | None = None) -> ResultWriter:
     """A streaming, atomic writer chosen by the suffix of ``path`` (``.npz`` or ``.parquet``).
 
     Args:
@@ -407,13 +404,14 @@ def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int,
             "force_closure", "quality")``.
         fingers, dim: the contacts per grasp and the dimension (2 or 3).
         steps: the length of the per-step fields (:data:`SERIES_FIELDS`), if any are stored.
+        frames: the frames of a contact path (:data:`PATH_FIELDS`), if one is stored.
 
     Raises:
         ValueError: unknown suffix, missing directory, unknown field.
     """
     path = check_output_path(path)
     cls = NpzWriter if path.suffix.lower() == ".npz" else ParquetWriter
-    return cls(path, metadata, tuple(fields), fingers, dim, steps)
+    return cls(path, metadata, tuple(fields), fingers, dim, steps, frames)
 
 
 # ---------------------------------------------------------------------------------------------

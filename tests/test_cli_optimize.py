@@ -20,7 +20,7 @@ from grasp_jax import storage, summary
 
 START = ["--fingers", "3", "--starts", "16", "--steps", "10", "--edges", "4"]
 FIELDS = {"points", "normals", "force_closure", "quality", "converged", "initial_points", "objective",
-          "reason", "history", "quality_history"}
+          "reason", "history", "quality_history", "path"}
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +79,9 @@ def test_output_file_has_the_sample_fields_and_the_history(runs):
     assert set(arrays) == FIELDS
     assert arrays["points"].shape == arrays["normals"].shape == arrays["initial_points"].shape == (16, 3, 2)
     assert arrays["history"].shape == arrays["quality_history"].shape == (16, 10)
+    # the contacts' path: the start, then the contacts after each compiled segment of steps
+    assert arrays["path"].shape[0] == 16 and arrays["path"].shape[2:] == (3, 2) and arrays["path"].shape[1] >= 2
+    np.testing.assert_array_equal(arrays["path"][:, 0], arrays["initial_points"])
     for name in ("force_closure", "quality", "converged", "objective", "reason"):
         assert arrays[name].shape == (16,)
     assert arrays["reason"].dtype == np.int8

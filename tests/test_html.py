@@ -53,7 +53,8 @@ def write_result(path: Path, obj, num: int, fingers: int, *, seed=0, optimizer=F
         p0, _ = sample_grasps(obj, num, fingers, seed=seed + 1)
         arrays.update(initial_points=p0, objective=q, reason=rng.integers(0, 3, num).astype(np.int8),
                       history=np.cumsum(rng.uniform(size=(num, 12)), axis=1) / 12,
-                      quality_history=np.cumsum(rng.uniform(size=(num, 12)), axis=1) / 12)
+                      quality_history=np.cumsum(rng.uniform(size=(num, 12)), axis=1) / 12,
+                      path=p0[:, None] + np.linspace(0, 1, 5)[None, :, None, None] * (p - p0)[:, None])
     meta = storage.metadata(command="optimize" if optimizer else "sample", object=str(obj.name) if
                             str(obj.name) in objects.BUILTIN_NAMES else None, mu=0.364, edges=8,
                             fingers=fingers, num=num)
@@ -109,7 +110,7 @@ def test_page_is_self_contained_and_lists_the_columns(pages):
     text = pages["opt"].read_text(encoding="utf-8")
     assert "<script src" not in text and "<link" not in text  # plotly's script is inline: nothing to fetch
     for word in EXTRA + ("force-closure reached", "initial_points", "central axis", "contact paths",
-                         "Q against step"):
+                         "Q against step", "5 positions from the start to the last step"):
         assert word in text, word
 
 

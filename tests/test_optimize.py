@@ -104,6 +104,11 @@ def test_contacts_stay_on_a_mesh_across_edges():
     assert dist.max() <= 1e-9 * mesh.radius
     moved = np.linalg.norm(res.points - res.initial_points, axis=-1)
     assert moved.max() > 0.2 * mesh.radius  # far enough to have crossed edges of 80 faces
+    # the recorded path (start, then after each segment of steps) stays on the mesh too
+    assert res.path.shape == (16, 5, 3, 3)  # 40 steps: 4 segments of 10
+    np.testing.assert_array_equal(res.path[:, 0], res.initial_points)
+    on = trimesh.proximity.closest_point(mesh.mesh, res.path.reshape(-1, 3))[1]
+    assert on.max() <= 1e-9 * mesh.radius
     assert res.normal_kind == "smooth"
     ev = gj.evaluate(res.points, res.normals, mu=MU, num_edges=M)
     np.testing.assert_array_equal(np.asarray(ev.quality), res.quality)
