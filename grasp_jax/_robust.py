@@ -53,7 +53,7 @@ from ._validate import check_int, check_scalar, is_traced
 #: Perturbed grasps (grasps x samples) scored per slice: memory is set by this, not by the batch.
 ROWS = 65536
 #: Retractions towards a finger's point that find the nearest surface point under pose noise.
-PROJECTION_STEPS = 3
+PROJECTION_STEPS = 2
 
 
 @dataclasses.dataclass(frozen=True)

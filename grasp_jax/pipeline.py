@@ -28,6 +28,7 @@ Several hosts
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import queue
 import threading
@@ -52,6 +53,60 @@ MIN_ROWS = 1024
 #: the summary counts a grasp as not force-closure by the baseline; qhull leaves round-off of about
 #: 1e-17 on grasps exactly on the boundary (contacts on parallel faces).
 EPSILON_ZERO = 1e-9
+
+
+# ---------------------------------------------------------------------------------------------
+# Robust labels
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustLabels:
+    """Robust labels written beside the nominal scores (``grasp-jax sample / score --robust N``):
+    :func:`grasp_jax.robust` of every chunk, with the same draws for every chunk (one key), so the
+    labels do not depend on the chunk size.
+
+    Attributes:
+        noise: a :class:`grasp_jax.Noise`.
+        samples: perturbations per grasp (>= 2).
+        seed: the key's seed (``jax.random.key(seed)``).
+        quantile: of ``q_low`` and ``margin_low``.
+        margin: also the min-weight margin columns.
+        obj: the object, where the noise moves contacts.
+    """
+
+    noise: object
+    samples: int = 100
+    seed: int = 0
+    quantile: float = 0.1
+    margin: bool = True
+    obj: object = None
+
+    #: RobustResult field -> result file column.
+    COLUMNS = {"p_fc": "p_fc", "p_fc_se": "p_fc_se", "q_mean": "q_mean", "q_mean_se": "q_mean_se",
+               "q_low": "q_low", "margin_mean": "margin_mean", "margin_mean_se": "margin_mean_se",
+               "margin_low": "margin_low", "unconverged": "robust_unconverged"}
+
+    def fields(self) -> tuple[str, ...]:
+        """The result file columns this adds."""
+        return tuple(c for f, c in self.COLUMNS.items() if self.margin or not f.startswith("margin"))
+
+    def to_dict(self) -> dict:
+        """The settings, for a result file's metadata (``robust``)."""
+        return {"samples": int(self.samples), "seed": int(self.seed), "quantile": float(self.quantile),
+                "margin": bool(self.margin), "noise": dataclasses.asdict(self.noise)}
+
+    def columns(self, points, normals, *, mu, num_edges, torque_test, contact, torsion) -> dict:
+        """``{column: (N,) array}`` of the grasps ``points``, ``normals`` ``(N, n, d)``."""
+        import jax
+
+        import grasp_jax as gj
+
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
+            res = gj.robust(self.obj, points, normals, mu=mu, noise=self.noise, key=jax.random.key(self.seed),
+                            samples=self.samples, quantile=self.quantile, num_edges=num_edges,
+                            torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
+        return {self.COLUMNS[f]: v for f, v in res.columns().items()}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -139,6 +194,7 @@ def score_stream(
     contact: str = "hard",
     torsion: float | None = None,
     extra_fields: tuple = (),
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Score a stream of chunks ``{"points", "normals"[, "force_closure"]}`` and write the results.
 
@@ -148,7 +204,9 @@ def score_stream(
     best grasps (the start of this process's slice). ``contact``, ``torsion``: the contact model,
     as :func:`grasp_jax.evaluate`. ``extra_fields``: columns of the chunks written as they are
     (the jaw poses of :mod:`grasp_jax.grippers`); where the chunks have ``jaw_status``, grasps
-    whose status is not ``OK`` are not force-closure, Q 0 (critical friction ``inf``).
+    whose status is not ``OK`` are not force-closure, Q 0 (critical friction ``inf``). ``robust``:
+    also write robust labels (:class:`RobustLabels`; for jaws, their contacts perturbed as free
+    contacts, failed jaws P(force-closure) 0).
     """
     import jax
 
@@ -160,7 +218,13 @@ def score_stream(
     fields = list(storage.RESULT_FIELDS) + list(extra_fields)
     if epsilon:
         fields += ["epsilon", "volume"]
+    if robust is not None:
+        if robust.noise.moves_contacts and robust.obj is None:
+            raise ValueError(f"robust labels under {robust.noise} move contacts over the object: give the object")
+        fields += list(robust.fields())
     meta = dict(metadata)
+    if robust is not None:
+        meta["robust"] = robust.to_dict()
     if epsilon:
         meta["epsilon_origin"] = _jsonable(origin) if origin is not None else [0.0] * dim
         meta["epsilon_torque_scale"] = float(torque_scale)
@@ -169,6 +233,7 @@ def score_stream(
     best = _TopK(top)
     devices = len(jax.local_devices())
     counts = dict(num=0, fc=0, unconverged=0, eps_pos=0, eps_dis=0, agree=0)
+    rob = dict(p_sum=0.0, p_fc_sum=0.0, q_sum=0.0, seconds=0.0)
     eps_max = 0.0
     have_ref = False
     bar = None
@@ -217,6 +282,11 @@ def score_stream(
                 eps_max = max(eps_max, float(eps.max()))
             elif bar is not None:
                 bar.update(rows)
+            if robust is not None:
+                t_robust = time.perf_counter()
+                batch.update(robust.columns(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test,
+                                            contact=contact, torsion=torsion))
+                rob["seconds"] += time.perf_counter() - t_robust
             if "force_closure" in chunk:
                 have_ref = True
                 counts["agree"] += int((np.asarray(chunk["force_closure"], bool) == fc).sum())
@@ -227,6 +297,10 @@ def score_stream(
                     fc, q = batch["force_closure"], batch["quality"]
             if writer is not None:
                 writer.write(batch)
+            if robust is not None:
+                rob["p_sum"] += float(batch["p_fc"].sum())
+                rob["p_fc_sum"] += float(batch["p_fc"][fc].sum())
+                rob["q_sum"] += float(batch["q_mean"].sum())
             hist.add(q[fc])
             best.add(index_offset + counts["num"], points, normals, q, fc)
             counts["num"] += rows
@@ -264,7 +338,23 @@ def score_stream(
         epsilon_disagree=counts["eps_dis"] if epsilon else None,
         epsilon_max=eps_max if epsilon else None,
         agree=counts["agree"] if have_ref else None,
+        robust=None if robust is None else _robust_summary(robust, counts, rob),
     )
+
+
+def _robust_summary(robust: RobustLabels, counts: dict, rob: dict) -> dict:
+    """The robust labels' part of the summary: mean P(force-closure) over all grasps and over the
+    nominally force-closure ones, mean expected Q, time."""
+    num = counts["num"]
+    return {
+        "samples": int(robust.samples),
+        "noise": str(robust.noise),
+        "p_fc_mean": rob["p_sum"] / num if num else math.nan,
+        "p_fc_mean_nominal_fc": rob["p_fc_sum"] / counts["fc"] if counts["fc"] else math.nan,
+        "q_mean_mean": rob["q_sum"] / num if num else math.nan,
+        "seconds": rob["seconds"],
+        "perturbed_per_second": num * robust.samples / rob["seconds"] if rob["seconds"] > 0 else math.nan,
+    }
 
 
 def _mask_failed_jaws(batch: dict, jaw_status) -> None:
@@ -275,6 +365,10 @@ def _mask_failed_jaws(batch: dict, jaw_status) -> None:
     fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
                                 batch.get("critical_status"))
     batch.update(force_closure=fc, quality=q)
+    failed = np.asarray(jaw_status) != 0
+    for name in RobustLabels.COLUMNS.values():
+        if name in batch and name != "robust_unconverged":
+            batch[name] = np.where(failed, 0.0, batch[name])
     if mu is not None:
         batch["critical_mu"] = mu
     if st is not None:
@@ -380,6 +474,7 @@ def run(
     torsion: float | None = None,
     gripper=None,
     collision: bool = False,
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
@@ -412,6 +507,7 @@ def run(
             (:func:`grasp_jax.grippers.antipodal_grasps`, friction cone ``mu``) instead of free
             contacts, ``fingers`` 2, and write their poses (``center``, ``axis``, ``approach``,
             ``width``, ``jaw_status``) too. ``collision``: check the gripper body.
+        robust: also write robust labels (:class:`RobustLabels`; its object defaults to ``obj``).
 
     Returns:
         :class:`PipelineSummary`.
@@ -478,10 +574,17 @@ def run(
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
             top=top, desc=f"{obj.name} x{fingers}", index_offset=start, contact=contact, torsion=torsion,
-            extra_fields=extra,
+            extra_fields=extra, robust=_with_object(robust, obj),
         )
     finally:
         chunks.close()
+
+
+def _with_object(robust: RobustLabels | None, obj) -> RobustLabels | None:
+    """``robust`` with its object set to ``obj`` where it has none."""
+    if robust is None or robust.obj is not None or obj is None:
+        return robust
+    return dataclasses.replace(robust, obj=obj)
 
 
 def score_file(
@@ -500,6 +603,7 @@ def score_file(
     top: int = DEFAULT_TOP,
     contact: str | None = None,
     torsion: float | None = None,
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Score the grasps stored in a ``.npz`` / ``.parquet`` file (``points``, ``normals``).
 
@@ -507,7 +611,7 @@ def score_file(
     to the file's metadata, else to :data:`DEFAULT_MU`, 8, ``"exact"`` and hard contacts. For ``epsilon``, ``origin`` and ``torque_scale``
     default to ``obj.center`` and ``obj.radius`` when an object is given; one of the two is
     required. If the file has a ``force_closure`` column the summary counts how many verdicts
-    agree. Other arguments as :func:`run`.
+    agree. Other arguments as :func:`run` (``robust``: noise that moves contacts needs ``obj``).
     """
     from . import storage
 
@@ -560,12 +664,14 @@ def score_file(
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
             top=top, desc=Path(path).name, contact=contact, torsion=torsion, extra_fields=extra,
+            robust=_with_object(robust, obj),
         )
     finally:
         chunks.close()
 
 
 __all__ = [
+    "RobustLabels",
     "DEFAULT_CHUNK",
     "DEFAULT_MU",
     "EPSILON_ZERO",

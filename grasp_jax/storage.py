@@ -10,6 +10,10 @@ A result file holds one row per grasp:
   ``objective`` ``(N,)`` float (the best objective reached), ``reason`` ``(N,)`` int8
   (:class:`grasp_jax.EndReason`), ``history`` and ``quality_history`` ``(N, steps)`` float (the
   objective and Q at each step);
+* with ``--robust N`` (:func:`grasp_jax.robust` over N perturbations): ``p_fc`` (P(force-closure)),
+  ``q_mean``, ``q_low`` (the low quantile of Q), ``margin_mean``, ``margin_low`` (of the min-weight
+  margin), their standard errors ``p_fc_se``, ``q_mean_se``, ``margin_mean_se`` ``(N,)`` float
+  and ``robust_unconverged`` ``(N,)`` int32;
 * from ``grasp-jax sample --gripper parallel-jaw``: the jaw poses ``center``, ``axis``, ``approach``
   ``(N, 3)`` float, ``width`` ``(N,)`` float and ``jaw_status`` ``(N,)`` int8
   (:class:`grasp_jax.grippers.JawStatus`);
@@ -58,6 +62,16 @@ SCALAR_FIELDS = {
     "reason": np.dtype(np.int8),
     "width": np.dtype(np.float64),
     "jaw_status": np.dtype(np.int8),
+    # robust labels (grasp-jax sample / score --robust N; grasp_jax.robust)
+    "p_fc": np.dtype(np.float64),
+    "p_fc_se": np.dtype(np.float64),
+    "q_mean": np.dtype(np.float64),
+    "q_mean_se": np.dtype(np.float64),
+    "q_low": np.dtype(np.float64),
+    "margin_mean": np.dtype(np.float64),
+    "margin_mean_se": np.dtype(np.float64),
+    "margin_low": np.dtype(np.float64),
+    "robust_unconverged": np.dtype(np.int32),
 }
 #: The fields of a scored result (``grasp-jax sample`` / ``score``), in file order.
 RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")

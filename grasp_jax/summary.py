@@ -132,6 +132,9 @@ class PipelineSummary:
         output: the file written, if any.
         metadata: the run's settings (as stored in the output).
         devices: devices each chunk was sharded over.
+        robust: with robust labels (``--robust N``): samples, noise, the mean P(force-closure)
+            over all grasps and over the nominally force-closure ones, the mean expected Q, the
+            seconds spent on them and perturbed grasps per second; ``None`` without.
     """
 
     num: int
@@ -151,6 +154,7 @@ class PipelineSummary:
     epsilon_disagree: int | None = None
     epsilon_max: float | None = None
     agree: int | None = None
+    robust: dict | None = None
 
     @property
     def force_closure_rate(self) -> float:
@@ -213,6 +217,12 @@ class PipelineSummary:
             listed = ", ".join(f"#{int(i)} Q {float(q):.4f}" for i, q in
                                zip(self.best.index[:k], self.best.quality[:k]))
             lines.append(f"best grasp{'s' if k > 1 else ' '}    {listed}")
+        if self.robust is not None:
+            r = self.robust
+            lines.append(
+                f"robust         {r['samples']} perturbations ({r['noise']}): P(FC) mean {r['p_fc_mean']:.3f}, "
+                f"{r['p_fc_mean_nominal_fc']:.3f} over the FC grasps; E[Q] mean {r['q_mean_mean']:.4f}; "
+                f"{r['perturbed_per_second']:,.0f} perturbed grasps/s")
         if self.epsilon_positive is not None:
             origin = ", ".join(f"{0.0 if abs(v) < 1e-12 else v:.3g}" for v in m.get("epsilon_origin", ()))
             lines.append(
