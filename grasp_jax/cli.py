@@ -44,6 +44,8 @@ examples:
   grasp-jax show glass.parquet --top 10 --html glass.html
   grasp-jax optimize glass --fingers 4 --starts 1024 --steps 200 --out opt.npz --plot opt.png
   grasp-jax sample glass --num 100000 --out s.npz && grasp-jax optimize --from s.npz --starts 256
+  grasp-jax sample glass --num 10000 --robust 100 --sigma-pos 0.02 --mu-range 0.8,1.2 --out robust.parquet
+  grasp-jax dataset meshes/ --out data/ --num 10000 --robust 100 --sigma-pos 0.02 --shard 0/4
 """
 
 _NOTES = (
@@ -466,6 +468,36 @@ def _add_optimize(sub, builtins: str) -> None:
     p.set_defaults(func=_cmd_optimize, distributed=False)
 
 
+def _add_dataset(sub) -> None:
+    p = sub.add_parser(
+        "dataset", help="sample and score grasps of many objects into one Parquet dataset (resumable, sharded)",
+        description="Sample and score --num grasps of every object of OBJECTS (a folder of mesh files, or a "
+                    "manifest: one mesh path or built-in name per line, optionally followed by a scale) with one "
+                    "configuration, optionally with robust labels, into DIR/object=<name>/part.parquet (a "
+                    "hive-partitioned Parquet dataset) and DIR/_manifest.json. Run it again to resume; --shard i/N "
+                    "(or a SLURM array) splits the objects over processes.",
+        formatter_class=_Formatter)
+    p.add_argument("objects", metavar="OBJECTS", type=Path, help="folder of mesh files, or a manifest text file")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the dataset folder (created or resumed)")
+    p.add_argument("--shard", default=None, metavar="i/N",
+                   help="do objects i, i+N, i+2N, ... of the sorted list (default: SLURM_ARRAY_TASK_ID / "
+                        "SLURM_ARRAY_TASK_COUNT in a SLURM array, else all)")
+    _add_sampling(p, num=10_000)
+    g = p.add_argument_group("scoring")
+    g.add_argument("--mu", type=_positive_float, default=DEFAULT_MU, help="friction coefficient tan(alpha)")
+    g.add_argument("--edges", type=_int(3, "an integer >= 3"), default=8, help="edges of each friction cone")
+    g.add_argument("--torque-test", choices=("exact", "paper"), default="exact", help="the torque test")
+    _add_contact(g)
+    _add_robust(p)
+    o = p.add_argument_group("performance and output")
+    o.add_argument("--chunk", type=_count, default=None, metavar="N", help="grasps per chunk (default 65536 on a CPU)")
+    o.add_argument("--devices", type=_int(1, "an integer >= 1"), default=None, metavar="N",
+                   help="CPU devices to split the cores into (default: one per core)")
+    o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    p.set_defaults(func=_cmd_dataset, distributed=False)
+
+
 def build_parser() -> argparse.ArgumentParser:
     try:
         from .objects import BUILTIN_NAMES
@@ -517,6 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_show)
 
     _add_optimize(sub, builtins)
+    _add_dataset(sub)
 
     p = sub.add_parser("demo", help=f"the default run: {DEMO_NUM:,} 4-finger grasps of the {DEMO_OBJECT}",
                        description="Sample and score random grasps of a built-in object and print what was "
@@ -783,6 +816,34 @@ def _cmd_show(args) -> int:
 
 #: Most random grasps drawn beside the optimization curves of ``optimize --plot``.
 MAX_SAMPLED = 1 << 18
+
+
+def _cmd_dataset(args) -> int:
+    from . import dataset
+
+    if args.first_contact is not None or args.scheme != "uniform":
+        raise ValueError("a dataset samples every object uniformly: leave out --scheme and --first-contact")
+    shard = dataset.parse_shard(args.shard) if args.shard is not None else dataset.shard_from_environment()
+    contact, torsion = _contact_settings(args, args.mu)
+    robust = _robust_settings(args)
+    dataset.list_objects(args.objects)  # an empty folder or a bad manifest: before JAX starts
+    _setup(args)
+    summary = dataset.build(
+        args.objects, args.out, num=args.num, fingers=args.fingers, mu=args.mu, num_edges=args.edges, seed=args.seed,
+        torque_test=args.torque_test, contact=contact, torsion=torsion, robust=robust, chunk=args.chunk,
+        shard=shard, progress=not args.quiet,
+    )
+    for name, reason in summary.failed.items():
+        _warn(f"{name}: failed: {reason}")
+    if args.json:
+        from .summary import summary_json
+
+        print(summary_json({"out": str(summary.out), "shard": list(summary.shard), "done": summary.done,
+                            "skipped": summary.skipped, "failed": summary.failed, "seconds": summary.seconds,
+                            "objects": summary.rows}), flush=True)
+    elif not args.quiet:
+        print(summary.format(), flush=True)
+    return 0
 
 
 def _same_object(spec: str, stored: str, meta: dict) -> bool:
