@@ -330,7 +330,7 @@ class RobustResult:
 
     __repr__ = __str__
 
-    def __getitem__(self, index) -> "RobustResult":
+    def __getitem__(self, index) -> RobustResult:
         """Index every field with the same batch index."""
         return jax.tree_util.tree_map(lambda a: a[index], self)
 

@@ -653,16 +653,8 @@ def _save_figure(fig, path: Path) -> None:
     """Write ``fig`` to ``path`` atomically (a temporary file renamed into place)."""
     from . import storage
 
-    fd, tmp = storage.temp_file(path, what="figure")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    storage.write_atomically(path, lambda f: fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi,
+                                                         bbox_inches="tight"), mode="wb", what="figure")
 
 
 def _rings(obj):

@@ -175,19 +175,9 @@ def versions() -> dict:
 
 def _write_json(path: Path, data: dict) -> None:
     """``data`` to ``path`` atomically (a temporary file renamed into place)."""
-    from .storage import _fsync_dir, temp_file
+    from .storage import _fsync_dir, write_atomically
 
-    fd, tmp = temp_file(path, what="dataset file")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=1, sort_keys=False, default=str)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(path, lambda f: f.write(json.dumps(data, indent=1, default=str) + "\n"), what="dataset file")
     _fsync_dir(path.parent)
 
 
@@ -499,9 +489,9 @@ def read(out, columns=None):
 
 
 __all__ = [
+    "MESH_SUFFIXES",
     "DatasetError",
     "DatasetSummary",
-    "MESH_SUFFIXES",
     "ObjectEntry",
     "build",
     "config_of",

@@ -35,7 +35,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping
+from typing import ClassVar, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -82,7 +82,7 @@ class RobustLabels:
     obj: object = None
 
     #: RobustResult field -> result file column.
-    COLUMNS = {"p_fc": "p_fc", "p_fc_se": "p_fc_se", "q_mean": "q_mean", "q_mean_se": "q_mean_se",
+    COLUMNS: ClassVar[dict] = {"p_fc": "p_fc", "p_fc_se": "p_fc_se", "q_mean": "q_mean", "q_mean_se": "q_mean_se",
                "q_low": "q_low", "margin_mean": "margin_mean", "margin_mean_se": "margin_mean_se",
                "margin_low": "margin_low", "unconverged": "robust_unconverged"}
 

@@ -162,6 +162,24 @@ def temp_file(path: Path, *, suffix: str = ".tmp", what: str = "output file") ->
     return fd, Path(name)
 
 
+def write_atomically(path: Path, write, *, mode: str = "w", what: str = "output file") -> Path:
+    """Publish a small file atomically: ``write(f)`` fills a :func:`temp_file` opened with
+    ``mode`` (``"w"``: UTF-8 text, ``"wb"``), which is flushed, ``fsync``-ed and renamed onto
+    ``path``; on any exception it is removed and nothing is published."""
+    path = Path(path)
+    fd, tmp = temp_file(path, what=what)
+    try:
+        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
 def _fsync_dir(directory: Path) -> None:
     try:
         fd = os.open(directory, os.O_RDONLY)

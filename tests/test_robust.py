@@ -92,7 +92,7 @@ def test_perturbed_contacts_stay_on_the_surface(sphere, box):
         surface = surfaces.for_object(obj)
         located = surface.locate(pp.reshape(-1, 3))
         with jax.enable_x64(True):
-            q, qn = jax.vmap(surface.embed)(located)
+            q, _ = jax.vmap(surface.embed)(located)
         np.testing.assert_allclose(np.asarray(q), pp.reshape(-1, 3), atol=1e-12 * obj.radius)
         np.testing.assert_allclose(np.linalg.norm(nn, axis=-1), 1.0, atol=1e-12)
         moved = np.linalg.norm(pp - p[:, None], axis=-1) / obj.radius
@@ -116,7 +116,7 @@ def test_common_random_numbers_and_reproducibility(box, box_grasps):
     c = gj.robust(box, p[[5, 0]], n[[5, 0]], mu=MU, noise=noise, key=key, samples=8, margin=False)
     np.testing.assert_array_equal(c.q_mean, a.q_mean[[5, 0]])
     # the same draws for every grasp: a grasp twice in a batch is perturbed identically
-    pp, nn, mm = gj.perturb(box, p[[1, 1]], n[[1, 1]], mu=MU, noise=noise, key=key, samples=8)
+    pp, _, mm = gj.perturb(box, p[[1, 1]], n[[1, 1]], mu=MU, noise=noise, key=key, samples=8)
     np.testing.assert_array_equal(pp[0], pp[1])
     np.testing.assert_array_equal(mm[0], mm[1])
     assert np.all(mm[0, 0] != mm[0, 1])  # each sample and contact its own friction
