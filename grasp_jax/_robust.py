@@ -44,7 +44,7 @@ import numpy as np
 
 from . import _closure
 from ._api import _bind, _check_common, _passes, _unfinished, check_contact
-from ._batch import Retry, map_grasps
+from ._batch import Retry, map_grasps, pad_rows
 from ._cones import safe_normalize, tangent_frame
 from ._constants import DEFAULT_NUM_EDGES
 from ._lp import Status
@@ -396,6 +396,7 @@ class _Perturber:
         self.points = points.reshape(self.total, n, d)
         self.normals = normals.reshape(self.total, n, d)
         self.draw = draws(key, self.samples, n, d, self.dtype)
+        self.per = max(1, ROWS // self.samples)  # grasps per slice: ROWS perturbed grasps
         self.sigmas = np.array([noise.position * self.scale, noise.normal, noise.friction[0], noise.friction[1],
                                 noise.friction_sigma, noise.rotation, noise.translation * self.scale], self.dtype)
 
@@ -411,9 +412,17 @@ class _Perturber:
         if self.surface is not None:
             located = self.surface.locate(p)
             contacts = type(located)(np.asarray(located.face), np.asarray(located.coords, self.dtype))
-        out = _perturb(self.surface, contacts, p, nrm, self.draw, self.sigmas, jnp.asarray(self.mu, self.dtype),
-                       flags=self.noise._flags())
-        return tuple(np.asarray(a) for a in out)
+        # Pieces of one padded size: one compiled perturbation per surface and sample count.
+        size = min(self.per, 1 << max(0, (self.total - 1).bit_length()))
+        pieces = []
+        for lo in range(0, g, size):
+            hi = min(lo + size, g)
+            pad = lambda a, lo=lo, hi=hi: pad_rows(a[lo:hi], size)  # noqa: E731
+            args = (None if contacts is None else jax.tree_util.tree_map(pad, contacts), pad(p), pad(nrm))
+            out = _perturb(self.surface, *args, self.draw, self.sigmas, jnp.asarray(self.mu, self.dtype),
+                           flags=self.noise._flags())
+            pieces.append(tuple(np.asarray(a)[:hi - lo] for a in out))
+        return tuple(np.concatenate(a) if len(pieces) > 1 else a[0] for a in zip(*pieces))
 
 
 def perturb(obj, points, normals, *, mu, noise: Noise, key, samples: int = 100):
@@ -503,7 +512,7 @@ def robust(
     evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
     weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
     budget, retry = _passes(perturber.points, num_edges, None, contact)
-    per = max(1, ROWS // samples)
+    per = perturber.per
     fields = {name: [] for name in RobustResult.COLUMNS}
     starts = range(0, total, per)
     if progress:

@@ -168,9 +168,9 @@ def _jsonable(x):
 
 
 def _pad(a: np.ndarray, size: int) -> np.ndarray:
-    if len(a) >= size:
-        return a
-    return np.concatenate([a, np.broadcast_to(a[:1], (size - len(a),) + a.shape[1:])])
+    from ._batch import pad_rows
+
+    return pad_rows(a, size)
 
 
 def score_stream(
