@@ -47,7 +47,7 @@ num, samples, margin, seed = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == 
 noise = gj.Noise(**json.loads(sys.argv[6]))
 obj = objects.Ellipsoid()
 p, n = sampling.sample_grasps(obj, num, 4, seed=seed)
-warm = gj.robust(obj, p[:64], n[:64], mu=0.364, noise=noise, key=jax.random.key(1), samples=samples, margin=margin)
+warm = gj.robust(obj, p[:_robust.ROWS // samples], n[:_robust.ROWS // samples], mu=0.364, noise=noise, key=jax.random.key(1), samples=samples, margin=margin)
 spent = {"perturb": 0.0}
 inner = _robust._Perturber.__call__
 def timed(self, start, stop):

@@ -255,6 +255,65 @@ def _perturb(surface, contacts, points, normals, draw, sigmas, mu, *, flags):
 
 
 # ---------------------------------------------------------------------------------------------
+# A differentiable robust objective for the optimizer (objective="robust" of gj.optimize).
+
+#: Perturbations per step of ``gj.optimize(objective="robust")`` (a fixed sample: the same draws
+#: at every step, so the objective is a smooth function of the contacts).
+OPTIMIZE_SAMPLES = 8
+
+
+class Reparameterized(NamedTuple):
+    """The fixed draws of ``objective="robust"``: :class:`Draws` of ``K`` samples and the sigmas
+    (``_perturb_one``'s order, lengths in object radii times the radius); static flags apart."""
+
+    draw: Draws
+    sigmas: jax.Array
+
+
+def reparameterized(noise: Noise, key, samples: int, n: int, d: int, scale: float, dtype) -> Reparameterized:
+    """The draws and sigmas of ``objective="robust"`` (a pytree for the optimizer's program)."""
+    draw = draws(key, samples, n, d, dtype)
+    sigmas = np.array([noise.position * scale, noise.normal, noise.friction[0], noise.friction[1],
+                       noise.friction_sigma, noise.rotation, noise.translation * scale], dtype)
+    return Reparameterized(draw, sigmas)
+
+
+def robust_value(surface, contacts, v, mu, noise: Reparameterized, objective, *, flags):
+    """The mean of ``objective(points, normals, mu (n,))`` over the fixed perturbations of one
+    grasp, differentiable in the ambient displacement ``v: (n, d)`` (in object radii; the
+    optimizer's chart variable): each perturbed contact is ``surface.chart(c, v + step)``, with
+    ``step`` the position noise in the contact's tangent frame plus the displacement that the pose
+    noise gives its finger (first order: the tangent part moves it), normals tilted, friction per
+    contact. Returns ``(mean value, value of each perturbation (K,))``."""
+    position, pose, tilt, friction = flags
+    s_pos, s_normal, lo, hi, s_mu, s_rot, s_trans = noise.sigmas
+    here, n0 = jax.vmap(surface.embed)(contacts)
+    frames = jax.lax.stop_gradient(jax.vmap(_tangents)(n0))
+
+    def one(draw):
+        step = jnp.zeros_like(here)
+        if position:
+            step = step + jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, frames)
+        if pose:
+            center = jnp.asarray(surface.center, here.dtype)
+            R = _rotation(s_rot * draw.rotation)
+            step = step + (here - center - s_trans * draw.translation) @ R + center - here
+        points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale + step)
+        if tilt:
+            normals = jax.vmap(_tilt)(normals, s_normal * draw.tilt)
+        if friction == "uniform":
+            m = mu * (lo + (hi - lo) * draw.uniform)
+        elif friction == "lognormal":
+            m = mu * jnp.exp(s_mu * draw.normal)
+        else:
+            m = jnp.full((points.shape[0],), mu, points.dtype)
+        return objective(points, normals, m)
+
+    values = jax.vmap(one)(noise.draw)
+    return jnp.mean(values), values
+
+
+# ---------------------------------------------------------------------------------------------
 # Scoring: the single-grasp functions of evaluate and min_weight, with per-contact friction.
 
 

@@ -204,3 +204,25 @@ def test_bad_arguments(box, box_grasps, monkeypatch):
         gj.robust(box, p, n[..., :2], **call)
     with pytest.raises(ValueError, match="2D but the grasps are 3D"):
         gj.robust(objects.quad(), p, n, **call)
+
+
+def test_optimize_for_robustness():
+    """objective="robust": with zero noise exactly the steps of "closure"; with noise a finite mean
+    objective whose best iterate is at least the start's; clear errors."""
+    rectangle = objects.Polygon.from_vertices(np.array([[-1.0, -0.5], [1.0, -0.5], [1.0, 0.5], [-1.0, 0.5]]),
+                                              name="rectangle")
+    init = np.array([[[-1.0, 0.42], [1.0, 0.3]], [[-1.0, -0.4], [1.0, 0.1]]])
+    kw = dict(init=init, fingers=2, mu=MU, steps=20, learning_rate=0.05)
+    nominal = gj.optimize(rectangle, objective="closure", **kw)
+    still = gj.optimize(rectangle, objective="robust", noise=gj.Noise(), **kw)
+    np.testing.assert_allclose(still.history, nominal.history, rtol=1e-12, atol=1e-15)
+    noisy = gj.optimize(rectangle, objective="robust", noise=gj.Noise(position=0.05, normal=0.05, friction=(0.7, 1.0)),
+                        robust_samples=4, **kw)
+    assert np.isfinite(noisy.history).all() and np.all(noisy.objective >= noisy.history[:, 0])
+    assert noisy.force_closure.all() and noisy.objective_name == "robust"
+    # friction lower than nominal by up to 30%: the mean objective is below the nominal one
+    assert np.all(noisy.history[:, 0] < nominal.history[:, 0])
+    with pytest.raises(ValueError, match="needs noise"):
+        gj.optimize(rectangle, objective="robust", **kw)
+    with pytest.raises(ValueError, match="noise is only used by it"):
+        gj.optimize(rectangle, objective="closure", noise=gj.Noise(position=0.1), **kw)
