@@ -429,7 +429,8 @@ class _Perturber:
     """The perturbations of one call: validated grasps, the surface, the draws; called on a slice
     of grasps, gives their perturbed copies (NumPy)."""
 
-    def __init__(self, obj, points, normals, mu, noise, key, samples, num_edges=DEFAULT_NUM_EDGES, torsion=None):
+    def __init__(self, obj, points, normals, mu, noise, key, samples, num_edges=DEFAULT_NUM_EDGES, torsion=None,
+                 normal_kind="flat"):
         if not isinstance(noise, Noise):
             raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
         self.samples = check_int("samples", samples, 1)
@@ -445,7 +446,7 @@ class _Perturber:
                                  "not None")
             from ._optimize import _surface
 
-            self.surface = _surface(obj, "smooth")
+            self.surface = _surface(obj, normal_kind)
             if self.surface.dim != d:
                 raise ValueError(f"the object is {self.surface.dim}D but the grasps are {d}D")
         self.scale = 1.0 if self.surface is None else float(self.surface.scale)
@@ -471,8 +472,10 @@ class _Perturber:
         if self.surface is not None:
             located = self.surface.locate(p)
             contacts = type(located)(np.asarray(located.face), np.asarray(located.coords, self.dtype))
-        # Pieces of one padded size: one compiled perturbation per surface and sample count.
-        size = min(self.per, 1 << max(0, (self.total - 1).bit_length()))
+        # Pieces of one padded size whatever the batch: one compiled perturbation per surface and
+        # sample count, and bit for bit the same perturbations of a grasp in any batch (XLA's
+        # programs of two sizes can round differently in the last bit).
+        size = self.per
         pieces = []
         for lo in range(0, g, size):
             hi = min(lo + size, g)
@@ -484,17 +487,18 @@ class _Perturber:
         return tuple(np.concatenate(a) if len(pieces) > 1 else a[0] for a in zip(*pieces))
 
 
-def perturb(obj, points, normals, *, mu, noise: Noise, key, samples: int = 100):
+def perturb(obj, points, normals, *, mu, noise: Noise, key, samples: int = 100, surface_normals: str = "flat"):
     """The perturbed grasps :func:`robust` scores (the same draws from the same key).
 
     Args:
-        obj, points, normals, mu, noise, key, samples: as :func:`robust` (``samples >= 1``).
+        obj, points, normals, mu, noise, key, samples, surface_normals: as :func:`robust`
+            (``samples >= 1``).
 
     Returns:
         ``(points, normals, mu)``: ``(..., S, n, d)`` perturbed contact points and normals and
         ``(..., S, n)`` friction coefficients, one per contact, NumPy arrays.
     """
-    perturber = _Perturber(obj, points, normals, mu, noise, key, samples)
+    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, normal_kind=surface_normals)
     with perturber.scope:
         if perturber.surface is not None:
             perturber.surface = jax.device_put(perturber.surface)
@@ -520,6 +524,7 @@ def robust(
     margin: bool = True,
     torque_scale: float | None = None,
     progress: bool = False,
+    surface_normals: str = "flat",
 ) -> RobustResult:
     """Robust labels of a batch of grasps: P(force-closure), mean and low quantile of Q and of
     the min-weight margin under ``noise``, with Monte Carlo standard errors.
@@ -549,6 +554,10 @@ def robust(
         torque_scale: the length torques are divided by in the min-weight margin (default the
             object's radius, else 1).
         progress: a progress bar over slices of grasps.
+        surface_normals: the normals of moved contacts on meshes and polygons: ``"flat"`` (face
+            normals, as :mod:`grasp_jax.sampling` gives them, the default) or ``"smooth"``
+            (interpolated, as :func:`grasp_jax.optimize` uses by default); analytic shapes have
+            exact normals.
 
     Returns:
         :class:`RobustResult` whose fields have the leading batch shape.
@@ -563,7 +572,7 @@ def robust(
         raise ValueError(f"quantile must be in [0, 1]; got {quantile!r}")
     if torque_test not in ("exact", "paper"):
         raise ValueError(f"torque_test must be 'exact' or 'paper'; got {torque_test!r}")
-    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion)
+    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion, surface_normals)
     dtype, total, d = perturber.dtype, perturber.total, perturber.points.shape[-1]
     contact, torsion = check_contact(contact, torsion, d)
     torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)

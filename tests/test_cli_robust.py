@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import jax
 import numpy as np
-import pytest
 
 import grasp_jax as gj
 from grasp_jax import objects, storage
@@ -19,7 +18,7 @@ ROBUST = ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "robust_unconverged
 
 def test_sample_and_score_write_robust_columns(env, tmp_path):  # noqa: F811
     out = grasp_jax("sample", "sphere", "--num", "300", "--seed", "3", "--robust", "8", *NOISE, "--no-margin",
-                    "--chunk", "128", "--devices", "1", "--out", "s.npz", env=env, cwd=tmp_path)
+                    "--chunk", "150", "--devices", "1", "--out", "s.npz", env=env, cwd=tmp_path)
     assert "robust         8 perturbations" in out.stdout and "P(FC) mean" in out.stdout
     a, meta = storage.read_results(tmp_path / "s.npz")
     assert set(ROBUST) <= set(a) and "margin_mean" not in a
@@ -48,14 +47,3 @@ def test_score_without_an_object_for_moving_noise(env, tmp_path):  # noqa: F811
                     check=False)
     assert out.returncode == 2 and out.stderr.strip().startswith("grasp-jax: error: the file names no object")
     assert sorted(f.name for f in tmp_path.iterdir()) == ["plain.npz"]
-
-
-@pytest.mark.parametrize("flag", ["--sigma-normal"])
-def test_normal_noise_needs_no_object(env, tmp_path, flag):  # noqa: F811
-    p = np.random.default_rng(0).normal(size=(10, 4, 3))
-    p /= np.linalg.norm(p, axis=-1, keepdims=True)
-    np.savez(tmp_path / "plain.npz", points=p, normals=p)
-    grasp_jax("score", "plain.npz", "--robust", "4", flag, "0.05", "--no-margin", "--devices", "1", "--out", "r.npz",
-              "--quiet", env=env, cwd=tmp_path)
-    r, _ = storage.read_results(tmp_path / "r.npz")
-    assert r["p_fc"].shape == (10,) and np.all((r["p_fc"] >= 0) & (r["p_fc"] <= 1))

@@ -133,9 +133,13 @@ def test_friction_distributions(box_grasps):
                           samples=400)
     log = np.log(mm[0] / MU)
     assert abs(np.median(log)) < 0.05 and abs(log.std() - 0.2) < 0.02
-    _, _, mm = gj.perturb(None, p, n, mu=MU, noise=gj.Noise(friction=(0.5, 1.5)), key=jax.random.key(0),
-                          samples=100)
+    pp, nn, mm = gj.perturb(None, p, n, mu=MU, noise=gj.Noise(friction=(0.5, 1.5), normal=0.1),
+                            key=jax.random.key(0), samples=100)
     assert mm.min() >= 0.5 * MU and mm.max() <= 1.5 * MU and abs(mm.mean() / MU - 1) < 0.05
+    # without an object: the points stay, the normals tilt (Rayleigh(0.1): median 0.118 rad)
+    np.testing.assert_array_equal(pp, np.broadcast_to(p[:, None], pp.shape))
+    tilt = np.arccos(np.clip(np.sum(nn * n[:, None], axis=-1), -1, 1))
+    assert 0.09 < np.median(tilt) < 0.15
 
 
 def test_agrees_with_a_larger_sample(box, box_grasps):
