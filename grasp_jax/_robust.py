@@ -550,7 +550,7 @@ def robust(
         quantile: the low quantile of ``q_low`` and ``margin_low``, in [0, 1] (10% by default).
         num_edges, torque_test, contact, torsion: as :func:`grasp_jax.evaluate` (``torsion``
             stays fixed while friction varies).
-        margin: also estimate the min-weight margin (about doubles the time).
+        margin: also estimate the min-weight margin (about a third more time).
         torque_scale: the length torques are divided by in the min-weight margin (default the
             object's radius, else 1).
         progress: a progress bar over slices of grasps.
