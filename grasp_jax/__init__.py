@@ -30,6 +30,10 @@ from ._optimize import EndReason as EndReason
 from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import optimize as optimize
 from ._result import GraspEvaluation as GraspEvaluation
+from ._robust import Noise as Noise
+from ._robust import RobustResult as RobustResult
+from ._robust import perturb as perturb
+from ._robust import robust as robust
 from ._wrench import CentralAxis as CentralAxis
 from ._wrench import central_axis as central_axis
 
@@ -50,6 +54,10 @@ __all__ = [
     "central_axis",
     "CentralAxis",
     "GraspEvaluation",
+    "robust",
+    "perturb",
+    "Noise",
+    "RobustResult",
     "Status",
     "optimize",
     "OptimizeResult",

@@ -418,6 +418,13 @@ def map_grasps(
     return jax.tree_util.tree_map(jax.device_put, out)
 
 
+def pad_rows(a: np.ndarray, size: int) -> np.ndarray:
+    """``a`` with its first row repeated up to ``size`` rows (a batch padded to a compiled size)."""
+    if len(a) >= size:
+        return a
+    return np.concatenate([a, np.broadcast_to(a[:1], (size - len(a),) + a.shape[1:])])
+
+
 _SHAPES: dict = {}
 
 

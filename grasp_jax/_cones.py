@@ -47,7 +47,8 @@ def cone_edges(
 
     Args:
         normals: ``(n, d)`` outward unit normals, ``d`` in {2, 3}.
-        mu: friction coefficient ``tan(alpha)``, scalar.
+        mu: friction coefficient ``tan(alpha)``: a scalar, or ``(n,)`` one per contact
+            (:func:`grasp_jax.robust` draws friction per contact).
         num_edges: ``m`` edges per cone in 3D (eq. 3); ignored in 2D, where a cone has 2 (eq. 9).
         tangents: optional ``(n, 3)`` first tangent direction of each 3D contact frame.
 
@@ -56,6 +57,8 @@ def cone_edges(
         each of length ``sqrt(1 + mu^2)``; in 2D ``(n, 2, 2)`` edges ``z_i -/+ mu t_i``.
     """
     z = -normals
+    if jnp.ndim(mu) == 1:  # one coefficient per contact
+        mu = jnp.reshape(mu, (-1,) + (1,) * (1 if normals.shape[-1] == 2 else 2))
     if normals.shape[-1] == 2:
         t = jnp.stack([-z[:, 1], z[:, 0]], axis=-1)  # z rotated by +90 degrees
         return jnp.stack([z - mu * t, z + mu * t], axis=1)

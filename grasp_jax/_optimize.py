@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from . import _robust
 from . import surfaces as _surfaces
 from ._api import _bind, _lp_columns, check_contact, evaluate
 from ._batch import map_grasps
@@ -71,6 +72,9 @@ CONVERGED_WINDOW = 0.25
 DISTINCT_TOL = 0.01
 
 _CLOSURE_KINDS = ("closure", "closure_any")
+#: ``objective=ROBUST`` (with ``noise=``): the mean ``"closure"`` objective over fixed
+#: perturbations (:func:`grasp_jax._robust.robust_value`).
+ROBUST = "robust"
 
 
 class EndReason(enum.IntEnum):
@@ -210,15 +214,17 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 
 
 def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool,
-             iterations: int, contact: str = "hard"):
+             iterations: int, contact: str = "hard", noise_flags=None):
     """Advance one start ``length`` steps. ``args``: the leaves of the start's state
     ``(contacts, optimizer state, travel, best contacts, best objective, best Q)`` (built in
     :func:`_run`; ``travel: (n, d)`` is the sum of the updates so far, the ``params`` the optimizer
-    sees), then ``shared = (surface, (mu, torsion), offset)``.
+    sees), then ``shared = (surface, (mu, torsion), offset, robust)`` (``robust``: the fixed
+    perturbations of ``objective="robust"``, :class:`grasp_jax._robust.Reparameterized`, else
+    ``None``; ``noise_flags``: their static structure).
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
-    *leaves, (surface, (mu, torsion), offset) = args
+    *leaves, (surface, (mu, torsion), offset, robust) = args
     contacts, opt_state, travel, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
     n, d = contacts.face.shape[0], surface.dim
     dtype = contacts.coords.dtype
@@ -226,6 +232,13 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     margin = tolerances(dtype).margin
 
     def value(v, contacts):
+        if kind == ROBUST:
+            def closure(points, normals, mu_per_contact):
+                return objective_one(points, normals, mu_per_contact, num_edges, "closure", surface.center,
+                                     surface.scale, iterations, best_effort=True, contact=contact, torsion=torsion)[0]
+
+            mean, _ = _robust.robust_value(surface, contacts, v, mu, robust, closure, flags=noise_flags)
+            return mean, {}
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
         return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
                              iterations, best_effort=True, contact=contact, torsion=torsion)
@@ -247,8 +260,12 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
             q = jnp.where(closure > margin, aux["delta"], 0.0)
         else:
             q = jnp.zeros((), dtype)
-        # The best iterate: force-closure ones (q > 0) by Q, before the others by objective.
-        better = jnp.where(q > 0, q > best_q, (best_q <= 0) & (val > best_value)) & active
+        # The best iterate: force-closure ones (q > 0) by Q, before the others by objective; for
+        # the robust objective, by it alone (the mean under noise is what is asked for).
+        if kind == ROBUST:
+            better = (val > best_value) & active
+        else:
+            better = jnp.where(q > 0, q > best_q, (best_q <= 0) & (val > best_value)) & active
         best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, contacts)
         best_value = jnp.where(better, val, best_value)
         best_q = jnp.where(better, q, best_q)
@@ -334,6 +351,8 @@ def optimize(
     progress: bool = False,
     contact: str = "hard",
     torsion=None,
+    noise=None,
+    robust_samples: int = _robust.OPTIMIZE_SAMPLES,
 ) -> OptimizeResult:
     """Move the contacts of many grasps over an object's surface to maximize an objective.
 
@@ -349,7 +368,11 @@ def optimize(
         num_edges: edges per 3D friction cone.
         objective: one of :data:`grasp_jax.OBJECTIVES` (see :mod:`grasp_jax._objectives`):
             ``"closure"`` (default), ``"closure_any"``, ``"min_weight"``, ``"signed_q"``, ``"dfc"``,
-            ``"dfc_eig"``.
+            ``"dfc_eig"``; or ``"robust"`` with ``noise``: the mean of ``"closure"`` over
+            ``robust_samples`` perturbations drawn once from ``key`` (reparameterized: contacts
+            moved by ``surface.chart``, normals tilted, friction per contact, pose noise to first
+            order), so that the grasps found hold under the noise; the best iterate is the one of
+            the largest mean.
         optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
             object's radius (default: :func:`default_optimizer`, Adam with cosine decay, from
             random starts restarted after a third of the steps). Pass the
@@ -380,6 +403,8 @@ def optimize(
         progress: show a progress bar over the steps.
         contact, torsion: the contact model, as :func:`grasp_jax.evaluate` (the objective and the
             final evaluation both use it).
+        noise: a :class:`grasp_jax.Noise`, for ``objective="robust"`` only.
+        robust_samples: perturbations of the robust objective (>= 1; each costs a step's LPs).
 
     Returns:
         :class:`OptimizeResult`.
@@ -399,8 +424,14 @@ def optimize(
     if learning_rate is None:
         learning_rate = DEFAULT_LEARNING_RATE if init is None else REFINE_LEARNING_RATE
     learning_rate = check_scalar("learning_rate", learning_rate)
-    if objective not in OBJECTIVES:
-        raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES))}; got {objective!r}")
+    if objective not in OBJECTIVES + (ROBUST,):
+        raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES + (ROBUST,)))}; got {objective!r}")
+    if (objective == ROBUST) != (noise is not None):
+        raise ValueError("objective='robust' needs noise=grasp_jax.Noise(...), and noise is only used by it")
+    if noise is not None:
+        if not isinstance(noise, _robust.Noise):
+            raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
+        robust_samples = check_int("robust_samples", robust_samples)
     user_optimizer = optimizer is not None
     if optimizer is None:
         optimizer = default_optimizer(steps, learning_rate, restart=init is None)
@@ -429,8 +460,13 @@ def optimize(
             lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
         )
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
+        robust = None
+        if noise is not None:
+            draw_key = jax.random.fold_in(key if init_points is None else _check_key(key), 24)
+            robust = (_robust.reparameterized(noise, draw_key, robust_samples, fingers, surface.dim,
+                                              float(surface.scale), dtype), noise._flags())
         result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
-                      contact, torsion)
+                      contact, torsion, robust)
         points, normals_out, best_value, history, qualities, path = result
         evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges, contact=contact,
                               torsion=None if contact == "hard" else torsion)
@@ -445,7 +481,7 @@ def optimize(
 
 
 def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iterations, progress, contact="hard",
-         torsion=0.0):
+         torsion=0.0, robust=None):
     """All starts through ``steps`` steps in compiled calls of equal length (:data:`SEGMENTS`,
     :data:`MIN_SEGMENT`)."""
     starts, n = contacts.face.shape[:2]
@@ -457,8 +493,9 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, max(1, steps // MIN_SEGMENT)))
     budget = iterations or first_pass_iterations(_lp_columns(n, d, num_edges, contact))
+    draws, flags = robust if robust is not None else (None, None)
     fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
-               length=length, total=steps, monitor=monitor, iterations=budget, contact=contact)
+               length=length, total=steps, monitor=monitor, iterations=budget, contact=contact, noise_flags=flags)
     mu = (jnp.asarray(mu, dtype), jnp.asarray(torsion, dtype))
     values, qualities = [], []
     embed = jax.vmap(jax.vmap(surface.embed))
@@ -470,7 +507,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
 
         bar = tqdm(total=steps, unit="step", desc=f"optimizing {starts:,} starts")
     for offset in segments:
-        shared = (surface, mu, jnp.asarray(offset, jnp.int32))
+        shared = (surface, mu, jnp.asarray(offset, jnp.int32), draws)
         leaves, vals, qs = map_grasps(fn, tuple(leaves), shared, (starts,))
         leaves = list(leaves)
         values.append(np.asarray(vals))

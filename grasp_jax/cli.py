@@ -44,6 +44,8 @@ examples:
   grasp-jax show glass.parquet --top 10 --html glass.html
   grasp-jax optimize glass --fingers 4 --starts 1024 --steps 200 --out opt.npz --plot opt.png
   grasp-jax sample glass --num 100000 --out s.npz && grasp-jax optimize --from s.npz --starts 256
+  grasp-jax sample glass --num 10000 --robust 100 --sigma-pos 0.02 --mu-range 0.8,1.2 --out robust.parquet
+  grasp-jax dataset meshes/ --out data/ --num 10000 --robust 100 --sigma-pos 0.02 --shard 0/4
 """
 
 _NOTES = (
@@ -168,6 +170,7 @@ def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
                    help="point epsilon's torques are taken about (default: the object's centre of mass)")
     g.add_argument("--torque-scale", type=_positive_float, default=None, metavar="L",
                    help="length epsilon's torques are divided by (default: the object's radius, as GraspIt)")
+    _add_robust(p)
     o = p.add_argument_group("output and performance")
     o.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write every grasp and its scores to FILE (.npz or .parquet), atomically")
@@ -182,6 +185,91 @@ def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
                         "process scores its slice and writes FILE.<i>-of-<P>.<suffix>")
     o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
     o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+
+
+def _add_robust(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("robust labels (grasp_jax.robust)")
+    g.add_argument("--robust", type=_int(2, "an integer >= 2"), default=None, metavar="N",
+                   help="also label every grasp under N perturbations (the same N for every grasp): columns "
+                        "p_fc (P(force-closure)), q_mean, q_low, margin_mean, margin_low and their standard "
+                        "errors, beside the nominal ones")
+    g.add_argument("--sigma-pos", type=_nonnegative_float, default=0.0, metavar="S",
+                   help="contact position noise along the surface, per tangent axis, in object radii")
+    g.add_argument("--sigma-normal", type=_nonnegative_float, default=0.0, metavar="RAD",
+                   help="normal tilt per tangent axis, radians")
+    g.add_argument("--mu-range", type=_range, default=None, metavar="LO,HI",
+                   help="friction per contact: mu x U[LO, HI]")
+    g.add_argument("--mu-sigma", type=_nonnegative_float, default=0.0, metavar="S",
+                   help="instead of --mu-range: friction per contact mu x exp(N(0, S^2)) (lognormal)")
+    g.add_argument("--sigma-pose", type=_pose, default=None, metavar="ROT[,TRANS]",
+                   help="object pose noise under fixed fingers: rotation per axis (radians) and translation "
+                        "per axis (object radii; default: ROT); contacts go to the nearest surface point")
+    g.add_argument("--quantile", type=_fraction, default=0.1, metavar="Q",
+                   help="the low quantile of q_low and margin_low")
+    g.add_argument("--robust-seed", type=_int(0, "an integer >= 0"), default=None, metavar="SEED",
+                   help="seed of the perturbations (default: --seed, or 0)")
+    g.add_argument("--no-margin", action="store_true",
+                   help="leave out the min-weight margin columns (margin_*)")
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two comma-separated multipliers like 0.8,1.2; got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise argparse.ArgumentTypeError(f"expected multipliers 0 < LO <= HI; got {text!r}")
+    return lo, hi
+
+
+def _pose(text: str) -> tuple[float, float]:
+    try:
+        values = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ROT or ROT,TRANS (numbers >= 0); got {text!r}") from None
+    if len(values) not in (1, 2) or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected ROT or ROT,TRANS (numbers >= 0); got {text!r}")
+    return values[0], values[-1]
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1]; got {text!r}") from None
+    if not (0 <= value <= 1):
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1]; got {text!r}")
+    return value
+
+
+def _noise_given(args) -> list[str]:
+    """The noise flags set on the command line."""
+    return [flag for flag, value in (("--sigma-pos", args.sigma_pos), ("--sigma-normal", args.sigma_normal),
+                                     ("--mu-range", args.mu_range), ("--mu-sigma", args.mu_sigma),
+                                     ("--sigma-pose", args.sigma_pose)) if value]
+
+
+def _robust_settings(args, obj=None):
+    """The :class:`grasp_jax.pipeline.RobustLabels` of --robust and the noise flags (``None``
+    without --robust). Checked before any work: call it once without ``obj`` first."""
+    given = _noise_given(args)
+    if args.robust is None:
+        extra = given + [f for f, v in (("--no-margin", args.no_margin), ("--robust-seed", args.robust_seed),
+                                        ("--quantile", args.quantile != 0.1)) if v]
+        if extra:
+            raise ValueError(f"{extra[0]} sets the robust labels: add --robust N (perturbations per grasp)")
+        return None
+    if not given:
+        raise ValueError("--robust N needs noise: --sigma-pos, --sigma-normal, --mu-range, --mu-sigma or --sigma-pose")
+    from ._robust import Noise
+    from .pipeline import RobustLabels
+
+    rot, trans = args.sigma_pose or (0.0, 0.0)
+    noise = Noise(position=args.sigma_pos, normal=args.sigma_normal, friction=args.mu_range or (1.0, 1.0),
+                  friction_sigma=args.mu_sigma, rotation=rot, translation=trans)
+    seed = args.robust_seed if args.robust_seed is not None else getattr(args, "seed", 0)
+    return RobustLabels(noise, samples=args.robust, seed=seed, quantile=args.quantile, margin=not args.no_margin,
+                        obj=obj)
 
 
 def _add_contact(g, default_note: str = "") -> None:
@@ -385,6 +473,36 @@ def _add_optimize(sub, builtins: str) -> None:
     p.set_defaults(func=_cmd_optimize, distributed=False)
 
 
+def _add_dataset(sub) -> None:
+    p = sub.add_parser(
+        "dataset", help="sample and score grasps of many objects into one Parquet dataset (resumable, sharded)",
+        description="Sample and score --num grasps of every object of OBJECTS (a folder of mesh files, or a "
+                    "manifest: one mesh path or built-in name per line, optionally followed by a scale) with one "
+                    "configuration, optionally with robust labels, into DIR/object=<name>/part.parquet (a "
+                    "hive-partitioned Parquet dataset) and DIR/_manifest.json. Run it again to resume; --shard i/N "
+                    "(or a SLURM array) splits the objects over processes.",
+        formatter_class=_Formatter)
+    p.add_argument("objects", metavar="OBJECTS", type=Path, help="folder of mesh files, or a manifest text file")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the dataset folder (created or resumed)")
+    p.add_argument("--shard", default=None, metavar="i/N",
+                   help="do objects i, i+N, i+2N, ... of the sorted list (default: SLURM_ARRAY_TASK_ID / "
+                        "SLURM_ARRAY_TASK_COUNT in a SLURM array, else all)")
+    _add_sampling(p, num=10_000)
+    g = p.add_argument_group("scoring")
+    g.add_argument("--mu", type=_positive_float, default=DEFAULT_MU, help="friction coefficient tan(alpha)")
+    g.add_argument("--edges", type=_int(3, "an integer >= 3"), default=8, help="edges of each friction cone")
+    g.add_argument("--torque-test", choices=("exact", "paper"), default="exact", help="the torque test")
+    _add_contact(g)
+    _add_robust(p)
+    o = p.add_argument_group("performance and output")
+    o.add_argument("--chunk", type=_count, default=None, metavar="N", help="grasps per chunk (default 65536 on a CPU)")
+    o.add_argument("--devices", type=_int(1, "an integer >= 1"), default=None, metavar="N",
+                   help="CPU devices to split the cores into (default: one per core)")
+    o.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    o.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary")
+    p.set_defaults(func=_cmd_dataset, distributed=False)
+
+
 def build_parser() -> argparse.ArgumentParser:
     try:
         from .objects import BUILTIN_NAMES
@@ -436,6 +554,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_show)
 
     _add_optimize(sub, builtins)
+    _add_dataset(sub)
 
     p = sub.add_parser("demo", help=f"the default run: {DEMO_NUM:,} 4-finger grasps of the {DEMO_OBJECT}",
                        description="Sample and score random grasps of a built-in object and print what was "
@@ -539,16 +658,8 @@ def _save_figure(fig, path: Path) -> None:
     """Write ``fig`` to ``path`` atomically (a temporary file renamed into place)."""
     from . import storage
 
-    fd, tmp = storage.temp_file(path, what="figure")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi, bbox_inches="tight")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    storage.write_atomically(path, lambda f: fig.savefig(f, format=path.suffix.lower()[1:], dpi=fig.dpi,
+                                                         bbox_inches="tight"), mode="wb", what="figure")
 
 
 def _rings(obj):
@@ -603,6 +714,7 @@ def _cmd_sample(args) -> int:
         storage.check_output_path(args.out)
     _check_plot_path(args.plot)
     jaw, contact, torsion = _jaw_settings(args) if hasattr(args, "gripper") else ({}, *_contact_settings(args, args.mu))
+    _robust_settings(args)
     _setup(args)
     obj = _load_object(args.object, args.hole)
     summary = pipeline.run(
@@ -611,6 +723,7 @@ def _cmd_sample(args) -> int:
         torque_scale=args.torque_scale, out=args.out, progress=not args.quiet, top=max(args.top, 5),
         distributed=args.distributed, object_spec=args.object, first_contact=args.first_contact,
         object_holes=args.hole, contact=contact, torsion=torsion, critical=args.critical_friction,
+        robust=_robust_settings(args, obj),
         **jaw,
     )
     _report(args, summary, best_lines=5)
@@ -636,21 +749,24 @@ def _cmd_score(args) -> int:
         if args.out.resolve() == args.file.resolve():
             raise ValueError("--out must differ from the input file")
     _check_plot_path(args.plot)
+    robust = _robust_settings(args)
     _setup(args)
     meta = storage.read_metadata(args.file)
     obj = None
     spec = args.object or meta.get("object")
     need_obj = (args.epsilon and (args.origin is None or args.torque_scale is None)) or args.plot is not None
+    need_obj = need_obj or (robust is not None and robust.noise.moves_contacts)
     if need_obj:
         if spec is None:
-            raise ValueError("the file names no object: pass --object (needed for --epsilon and --plot)")
+            raise ValueError("the file names no object: pass --object (needed for --epsilon, --plot and noise that "
+                             "moves contacts)")
         obj = _load_object(spec, _holes(args, meta))
     contact, torsion = _contact_settings(args, args.mu if args.mu is not None else meta.get("mu", DEFAULT_MU), {})
     summary = pipeline.score_file(
         args.file, mu=args.mu, num_edges=args.edges, torque_test=args.torque_test, chunk=args.chunk,
         epsilon=args.epsilon, origin=args.origin, torque_scale=args.torque_scale, obj=obj, out=args.out,
         progress=not args.quiet, top=max(args.top, 5), contact=contact, torsion=torsion,
-        critical=bool(args.critical_friction),
+        critical=bool(args.critical_friction), robust=_robust_settings(args, obj),
     )
     _report(args, summary, best_lines=5)
     if obj is not None:
@@ -698,6 +814,34 @@ def _cmd_show(args) -> int:
 
 #: Most random grasps drawn beside the optimization curves of ``optimize --plot``.
 MAX_SAMPLED = 1 << 18
+
+
+def _cmd_dataset(args) -> int:
+    from . import dataset
+
+    if args.first_contact is not None or args.scheme != "uniform":
+        raise ValueError("a dataset samples every object uniformly: leave out --scheme and --first-contact")
+    shard = dataset.parse_shard(args.shard) if args.shard is not None else dataset.shard_from_environment()
+    contact, torsion = _contact_settings(args, args.mu)
+    robust = _robust_settings(args)
+    dataset.list_objects(args.objects)  # an empty folder or a bad manifest: before JAX starts
+    _setup(args)
+    summary = dataset.build(
+        args.objects, args.out, num=args.num, fingers=args.fingers, mu=args.mu, num_edges=args.edges, seed=args.seed,
+        torque_test=args.torque_test, contact=contact, torsion=torsion, robust=robust, chunk=args.chunk,
+        shard=shard, progress=not args.quiet,
+    )
+    for name, reason in summary.failed.items():
+        _warn(f"{name}: failed: {reason}")
+    if args.json:
+        from .summary import summary_json
+
+        print(summary_json({"out": str(summary.out), "shard": list(summary.shard), "done": summary.done,
+                            "skipped": summary.skipped, "failed": summary.failed, "seconds": summary.seconds,
+                            "objects": summary.rows}), flush=True)
+    elif not args.quiet:
+        print(summary.format(), flush=True)
+    return 0
 
 
 def _same_object(spec: str, stored: str, meta: dict) -> bool:

@@ -692,17 +692,7 @@ def write_page(fig, page, *, title: str = "grasp_jax") -> Path:
     text = fig.to_html(include_plotlyjs=True, full_html=True, div_id="grasp-jax-page",
                        config={"displaylogo": False, "responsive": True, "scrollZoom": True})
     text = text.replace("<head>", f"<head><title>{_html.escape(title)}</title>", 1)
-    fd, tmp = storage.temp_file(page, what="page")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as out:
-            out.write(text)
-            out.flush()
-            os.fsync(out.fileno())
-        os.replace(tmp, page)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return page
+    return storage.write_atomically(page, lambda out: out.write(text), what="page")
 
 
 def grasp_page(geometry, points, normals, page, *, mu: float, num_edges: int = 8, columns=None, index=None,

@@ -28,13 +28,14 @@ Several hosts
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import queue
 import threading
 import time
 import warnings
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping
+from typing import ClassVar, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -52,6 +53,60 @@ MIN_ROWS = 1024
 #: the summary counts a grasp as not force-closure by the baseline; qhull leaves round-off of about
 #: 1e-17 on grasps exactly on the boundary (contacts on parallel faces).
 EPSILON_ZERO = 1e-9
+
+
+# ---------------------------------------------------------------------------------------------
+# Robust labels
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustLabels:
+    """Robust labels written beside the nominal scores (``grasp-jax sample / score --robust N``):
+    :func:`grasp_jax.robust` of every chunk, with the same draws for every chunk (one key), so the
+    labels do not depend on the chunk size.
+
+    Attributes:
+        noise: a :class:`grasp_jax.Noise`.
+        samples: perturbations per grasp (>= 2).
+        seed: the key's seed (``jax.random.key(seed)``).
+        quantile: of ``q_low`` and ``margin_low``.
+        margin: also the min-weight margin columns.
+        obj: the object, where the noise moves contacts.
+    """
+
+    noise: object
+    samples: int = 100
+    seed: int = 0
+    quantile: float = 0.1
+    margin: bool = True
+    obj: object = None
+
+    #: RobustResult field -> result file column.
+    COLUMNS: ClassVar[dict] = {"p_fc": "p_fc", "p_fc_se": "p_fc_se", "q_mean": "q_mean", "q_mean_se": "q_mean_se",
+               "q_low": "q_low", "margin_mean": "margin_mean", "margin_mean_se": "margin_mean_se",
+               "margin_low": "margin_low", "unconverged": "robust_unconverged"}
+
+    def fields(self) -> tuple[str, ...]:
+        """The result file columns this adds."""
+        return tuple(c for f, c in self.COLUMNS.items() if self.margin or not f.startswith("margin"))
+
+    def to_dict(self) -> dict:
+        """The settings, for a result file's metadata (``robust``)."""
+        return {"samples": int(self.samples), "seed": int(self.seed), "quantile": float(self.quantile),
+                "margin": bool(self.margin), "noise": dataclasses.asdict(self.noise)}
+
+    def columns(self, points, normals, *, mu, num_edges, torque_test, contact, torsion) -> dict:
+        """``{column: (N,) array}`` of the grasps ``points``, ``normals`` ``(N, n, d)``."""
+        import jax
+
+        import grasp_jax as gj
+
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
+            res = gj.robust(self.obj, points, normals, mu=mu, noise=self.noise, key=jax.random.key(self.seed),
+                            samples=self.samples, quantile=self.quantile, num_edges=num_edges,
+                            torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
+        return {self.COLUMNS[f]: v for f, v in res.columns().items()}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -113,9 +168,9 @@ def _jsonable(x):
 
 
 def _pad(a: np.ndarray, size: int) -> np.ndarray:
-    if len(a) >= size:
-        return a
-    return np.concatenate([a, np.broadcast_to(a[:1], (size - len(a),) + a.shape[1:])])
+    from ._batch import pad_rows
+
+    return pad_rows(a, size)
 
 
 def score_stream(
@@ -140,6 +195,7 @@ def score_stream(
     torsion: float | None = None,
     extra_fields: tuple = (),
     critical: bool = False,
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Score a stream of chunks ``{"points", "normals"[, "force_closure"]}`` and write the results.
 
@@ -151,7 +207,8 @@ def score_stream(
     (the jaw poses of :mod:`grasp_jax.grippers`); where the chunks have ``jaw_status``, grasps
     whose status is not ``OK`` are not force-closure, Q 0 (critical friction ``inf``).
     ``critical``: also the critical friction of each grasp (:func:`grasp_jax.critical_friction`,
-    columns :data:`CRITICAL_FIELDS`).
+    columns :data:`CRITICAL_FIELDS`). ``robust``: also write robust labels (:class:`RobustLabels`;
+    for jaws, their contacts perturbed as free contacts, failed jaws P(force-closure) 0).
     """
     import jax
 
@@ -165,7 +222,13 @@ def score_stream(
         fields += ["epsilon", "volume"]
     if critical:
         fields += list(CRITICAL_FIELDS)
+    if robust is not None:
+        if robust.noise.moves_contacts and robust.obj is None:
+            raise ValueError(f"robust labels under {robust.noise} move contacts over the object: give the object")
+        fields += list(robust.fields())
     meta = dict(metadata)
+    if robust is not None:
+        meta["robust"] = robust.to_dict()
     if epsilon:
         meta["epsilon_origin"] = _jsonable(origin) if origin is not None else [0.0] * dim
         meta["epsilon_torque_scale"] = float(torque_scale)
@@ -175,6 +238,7 @@ def score_stream(
     devices = len(jax.local_devices())
     counts = dict(num=0, fc=0, unconverged=0, eps_pos=0, eps_dis=0, agree=0)
     critical_mu = _QualityHistogram(_CRITICAL_RANGE) if critical else None
+    rob = dict(p_sum=0.0, p_fc_sum=0.0, q_sum=0.0, seconds=0.0)
     eps_max = 0.0
     have_ref = False
     bar = None
@@ -230,6 +294,11 @@ def score_stream(
                 eps_max = max(eps_max, float(eps.max()))
             elif bar is not None:
                 bar.update(rows)
+            if robust is not None:
+                t_robust = time.perf_counter()
+                batch.update(robust.columns(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test,
+                                            contact=contact, torsion=torsion))
+                rob["seconds"] += time.perf_counter() - t_robust
             if "force_closure" in chunk:
                 have_ref = True
                 counts["agree"] += int((np.asarray(chunk["force_closure"], bool) == fc).sum())
@@ -243,6 +312,10 @@ def score_stream(
                 critical_mu.add(np.minimum(batch["critical_mu"], _CRITICAL_RANGE))
             if writer is not None:
                 writer.write(batch)
+            if robust is not None:
+                rob["p_sum"] += float(batch["p_fc"].sum())
+                rob["p_fc_sum"] += float(batch["p_fc"][fc].sum())
+                rob["q_sum"] += float(batch["q_mean"].sum())
             hist.add(q[fc])
             best.add(index_offset + counts["num"], points, normals, q, fc)
             counts["num"] += rows
@@ -282,6 +355,7 @@ def score_stream(
         agree=counts["agree"] if have_ref else None,
         critical_percentiles=({p: critical_mu.percentile(p) for p in PERCENTILES} if critical and critical_mu.total
                               else None),
+        robust=None if robust is None else _robust_summary(robust, counts, rob),
     )
 
 
@@ -292,6 +366,21 @@ CRITICAL_FIELDS = ("critical_mu", "critical_status", "friction_label")
 _CRITICAL_RANGE = 4.0
 
 
+def _robust_summary(robust: RobustLabels, counts: dict, rob: dict) -> dict:
+    """The robust labels' part of the summary: mean P(force-closure) over all grasps and over the
+    nominally force-closure ones, mean expected Q, time."""
+    num = counts["num"]
+    return {
+        "samples": int(robust.samples),
+        "noise": str(robust.noise),
+        "p_fc_mean": rob["p_sum"] / num if num else math.nan,
+        "p_fc_mean_nominal_fc": rob["p_fc_sum"] / counts["fc"] if counts["fc"] else math.nan,
+        "q_mean_mean": rob["q_sum"] / num if num else math.nan,
+        "seconds": rob["seconds"],
+        "perturbed_per_second": num * robust.samples / rob["seconds"] if rob["seconds"] > 0 else math.nan,
+    }
+
+
 def _mask_failed_jaws(batch: dict, jaw_status) -> None:
     """Grasps whose jaw status is not ``OK``: not force-closure, Q 0, critical friction ``inf``
     (``grasp_jax.grippers.score_grasps``'s rule), in place."""
@@ -300,6 +389,10 @@ def _mask_failed_jaws(batch: dict, jaw_status) -> None:
     fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
                                 batch.get("critical_status"))
     batch.update(force_closure=fc, quality=q)
+    failed = np.asarray(jaw_status) != 0
+    for name in RobustLabels.COLUMNS.values():
+        if name in batch and name != "robust_unconverged":
+            batch[name] = np.where(failed, 0.0, batch[name])
     if mu is not None:
         batch["critical_mu"] = mu
     if st is not None:
@@ -406,6 +499,7 @@ def run(
     gripper=None,
     collision: bool = False,
     critical: bool | None = None,
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
@@ -441,6 +535,7 @@ def run(
         critical: also the critical friction of each grasp (:func:`grasp_jax.critical_friction`;
             columns :data:`CRITICAL_FIELDS`). Default: with a gripper only (it costs about a sixth
             of the throughput for two soft contacts, a twentieth for four hard ones).
+        robust: also write robust labels (:class:`RobustLabels`; its object defaults to ``obj``).
 
     Returns:
         :class:`PipelineSummary`.
@@ -511,10 +606,17 @@ def run(
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
             top=top, desc=f"{obj.name} x{fingers}", index_offset=start, contact=contact, torsion=torsion,
-            extra_fields=extra, critical=critical,
+            extra_fields=extra, critical=critical, robust=_with_object(robust, obj),
         )
     finally:
         chunks.close()
+
+
+def _with_object(robust: RobustLabels | None, obj) -> RobustLabels | None:
+    """``robust`` with its object set to ``obj`` where it has none."""
+    if robust is None or robust.obj is not None or obj is None:
+        return robust
+    return dataclasses.replace(robust, obj=obj)
 
 
 def score_file(
@@ -534,6 +636,7 @@ def score_file(
     contact: str | None = None,
     torsion: float | None = None,
     critical: bool = False,
+    robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Score the grasps stored in a ``.npz`` / ``.parquet`` file (``points``, ``normals``).
 
@@ -542,7 +645,7 @@ def score_file(
     default to ``obj.center`` and ``obj.radius`` when an object is given; one of the two is
     required. If the file has a ``force_closure`` column the summary counts how many verdicts
     agree. ``critical``: also the critical friction (columns :data:`CRITICAL_FIELDS`). Other
-    arguments as :func:`run`.
+    arguments as :func:`run` (``robust``: noise that moves contacts needs ``obj``).
     """
     from . import storage
 
@@ -595,13 +698,14 @@ def score_file(
             torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
             torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
             top=top, desc=Path(path).name, contact=contact, torsion=torsion, extra_fields=extra,
-            critical=critical,
+            critical=critical, robust=_with_object(robust, obj),
         )
     finally:
         chunks.close()
 
 
 __all__ = [
+    "RobustLabels",
     "DEFAULT_CHUNK",
     "DEFAULT_MU",
     "EPSILON_ZERO",

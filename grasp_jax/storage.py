@@ -10,6 +10,10 @@ A result file holds one row per grasp:
   ``objective`` ``(N,)`` float (the best objective reached), ``reason`` ``(N,)`` int8
   (:class:`grasp_jax.EndReason`), ``history`` and ``quality_history`` ``(N, steps)`` float (the
   objective and Q at each step);
+* with ``--robust N`` (:func:`grasp_jax.robust` over N perturbations): ``p_fc`` (P(force-closure)),
+  ``q_mean``, ``q_low`` (the low quantile of Q), ``margin_mean``, ``margin_low`` (of the min-weight
+  margin), their standard errors ``p_fc_se``, ``q_mean_se``, ``margin_mean_se`` ``(N,)`` float
+  and ``robust_unconverged`` ``(N,)`` int32;
 * from ``grasp-jax sample --gripper parallel-jaw``: the jaw poses ``center``, ``axis``, ``approach``
   ``(N, 3)`` float, ``width`` ``(N,)`` float and ``jaw_status`` ``(N,)`` int8
   (:class:`grasp_jax.grippers.JawStatus`);
@@ -61,6 +65,16 @@ SCALAR_FIELDS = {
     "critical_mu": np.dtype(np.float64),
     "critical_status": np.dtype(np.int8),
     "friction_label": np.dtype(np.float64),
+    # robust labels (grasp-jax sample / score --robust N; grasp_jax.robust)
+    "p_fc": np.dtype(np.float64),
+    "p_fc_se": np.dtype(np.float64),
+    "q_mean": np.dtype(np.float64),
+    "q_mean_se": np.dtype(np.float64),
+    "q_low": np.dtype(np.float64),
+    "margin_mean": np.dtype(np.float64),
+    "margin_mean_se": np.dtype(np.float64),
+    "margin_low": np.dtype(np.float64),
+    "robust_unconverged": np.dtype(np.int32),
 }
 #: The fields of a scored result (``grasp-jax sample`` / ``score``), in file order.
 RESULT_FIELDS = ("points", "normals", "force_closure", "quality", "converged")
@@ -151,6 +165,24 @@ def temp_file(path: Path, *, suffix: str = ".tmp", what: str = "output file") ->
         raise _cannot_write(what, path, exc) from None
     publish_mode(fd)
     return fd, Path(name)
+
+
+def write_atomically(path: Path, write, *, mode: str = "w", what: str = "output file") -> Path:
+    """Publish a small file atomically: ``write(f)`` fills a :func:`temp_file` opened with
+    ``mode`` (``"w"``: UTF-8 text, ``"wb"``), which is flushed, ``fsync``-ed and renamed onto
+    ``path``; on any exception it is removed and nothing is published."""
+    path = Path(path)
+    fd, tmp = temp_file(path, what=what)
+    try:
+        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
 
 
 def _fsync_dir(directory: Path) -> None:

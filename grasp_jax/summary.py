@@ -134,6 +134,9 @@ class PipelineSummary:
         output: the file written, if any.
         metadata: the run's settings (as stored in the output).
         devices: devices each chunk was sharded over.
+        robust: with robust labels (``--robust N``): samples, noise, the mean P(force-closure)
+            over all grasps and over the nominally force-closure ones, the mean expected Q, the
+            seconds spent on them and perturbed grasps per second; ``None`` without.
     """
 
     num: int
@@ -154,6 +157,7 @@ class PipelineSummary:
     epsilon_max: float | None = None
     agree: int | None = None
     critical_percentiles: dict | None = None
+    robust: dict | None = None
 
     @property
     def force_closure_rate(self) -> float:
@@ -220,6 +224,12 @@ class PipelineSummary:
             pct = "  ".join(f"p{p} {q:.3f}" for p, q in self.critical_percentiles.items())
             lines.append(f"critical mu    {pct}  (all grasps; above the cap {m.get('critical_friction_cap', 4):g} "
                          "counted at it)")
+        if self.robust is not None:
+            r = self.robust
+            lines.append(
+                f"robust         {r['samples']} perturbations ({r['noise']}): P(FC) mean {r['p_fc_mean']:.3f}, "
+                f"{r['p_fc_mean_nominal_fc']:.3f} over the FC grasps; E[Q] mean {r['q_mean_mean']:.4f}; "
+                f"{r['perturbed_per_second']:,.0f} perturbed grasps/s")
         if self.epsilon_positive is not None:
             origin = ", ".join(f"{0.0 if abs(v) < 1e-12 else v:.3g}" for v in m.get("epsilon_origin", ()))
             lines.append(

@@ -181,6 +181,14 @@ MISTAKES = [
     (["sample", "sphere", "--contact", "soft", "--torsion", "-1"], "--torsion"),
     (["sample", "sphere", "--contact", "soft", "--torsion", "0.1", "--patch-radius", "0.1"], "not both"),
     (["sample", "quad", "--contact", "soft", "--torsion", "0.1"], "3D only"),
+    (["sample", "sphere", "--sigma-pos", "0.1"], "add --robust N"),
+    (["sample", "sphere", "--robust", "10"], "needs noise"),
+    (["sample", "sphere", "--robust", "1", "--sigma-pos", "0.1"], "--robust"),
+    (["sample", "sphere", "--robust", "10", "--sigma-pos", "-1"], "--sigma-pos"),
+    (["sample", "sphere", "--robust", "10", "--mu-range", "1.2,0.8"], "--mu-range"),
+    (["sample", "sphere", "--robust", "10", "--mu-range", "0.8,1.2", "--mu-sigma", "0.1"], "not both"),
+    (["sample", "sphere", "--robust", "10", "--sigma-pose", "0.1,x"], "--sigma-pose"),
+    (["score", "empty.npz", "--robust", "10"], "needs noise"),
 ]
 
 

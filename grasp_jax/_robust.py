@@ -1,0 +1,633 @@
+"""Robust grasp labels: force-closure and quality under noise, by Monte Carlo (Dex-Net 2.0's
+robust metrics).
+
+A :class:`Noise` describes what may differ from the nominal grasp: where each finger touches the
+object (moved along its surface), the contact normals, the friction at each contact and the
+object's pose under fixed fingers. :func:`robust` draws ``samples`` perturbations of every grasp
+and scores them with the same single-grasp programs as :func:`grasp_jax.evaluate` and
+:func:`grasp_jax.min_weight`, through the one batching path (``_batch.map_grasps``): grasps x
+samples are flattened into one batch, a slice of grasps at a time, so memory stays flat and one
+compiled program serves every grasp shape.
+
+Common random numbers: the draws depend on the key, the sample index and the contact slot only,
+never on the grasp, so every grasp meets the same perturbations and the ranking of two grasps does
+not move with the draw (the difference of their estimates has a much smaller variance than each).
+
+Units and conventions:
+
+* ``position``: standard deviation of each tangent coordinate of a contact's displacement, in
+  units of the object's radius (``surface.scale``); the contact moves by it along the surface
+  (``Surface.retract``), so it stays on the object;
+* ``normal``: standard deviation of each tangent coordinate of the normal's tilt, in radians (the
+  tilt angle is Rayleigh-distributed with this scale in 3D, normal in 2D);
+* ``friction``: ``(lo, hi)``: each contact's ``mu`` times ``U[lo, hi]``; or ``friction_sigma``:
+  ``mu`` times ``exp(N(0, sigma^2))`` (lognormal, median ``mu``);
+* ``rotation`` (radians, per axis of the rotation vector; the angle in 2D) and ``translation``
+  (object radius units, per axis): the object moves by ``x -> R (x - c) + c + t`` about its centre
+  ``c`` while the fingers stay where they are; each contact then goes to the surface point
+  nearest to its finger (found by :data:`PROJECTION_STEPS` retractions towards it, the nearest
+  point for perturbations small beside the surface's curvature radius). Force-closure and Q do
+  not depend on the frame, so the grasp is scored in the object's frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import warnings
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _closure
+from ._api import _bind, _check_common, _passes, _unfinished, check_contact
+from ._batch import Retry, map_grasps, pad_rows
+from ._cones import safe_normalize, tangent_frame
+from ._constants import DEFAULT_NUM_EDGES
+from ._lp import Status
+from ._validate import check_int, check_scalar, is_traced
+
+#: Perturbed grasps (grasps x samples) scored per slice: memory is set by this, not by the batch.
+ROWS = 65536
+#: Retractions towards a finger's point that find the nearest surface point under pose noise.
+PROJECTION_STEPS = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Noise:
+    """What may differ from the nominal grasp; every field 0 (or ``(1, 1)``) is no noise.
+
+    Attributes:
+        position: contact position: standard deviation per tangent axis, in units of the
+            object's radius; contacts move along the surface (needs an object).
+        normal: normal tilt: standard deviation per tangent axis, radians.
+        friction: ``(lo, hi)``, ``0 < lo <= hi``: each contact's friction is ``mu * U[lo, hi]``.
+        friction_sigma: instead of ``friction``: ``mu * exp(N(0, friction_sigma^2))`` per contact.
+        rotation: object pose: standard deviation of each rotation-vector component, radians
+            (needs an object).
+        translation: object pose: standard deviation of each translation component, in units of
+            the object's radius (needs an object).
+
+    Raises:
+        ValueError: a negative or non-finite sigma, or a bad friction range.
+    """
+
+    position: float = 0.0
+    normal: float = 0.0
+    friction: tuple[float, float] = (1.0, 1.0)
+    friction_sigma: float = 0.0
+    rotation: float = 0.0
+    translation: float = 0.0
+
+    def __post_init__(self):
+        for name in ("position", "normal", "friction_sigma", "rotation", "translation"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(value) or value < 0:
+                raise ValueError(f"Noise.{name} must be a finite number >= 0 (a standard deviation); got {value!r}")
+            object.__setattr__(self, name, float(value))
+        try:
+            lo, hi = (float(v) for v in self.friction)
+        except (TypeError, ValueError):
+            raise ValueError(f"Noise.friction must be a pair (lo, hi) of multipliers; got {self.friction!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+            raise ValueError(f"Noise.friction must be multipliers 0 < lo <= hi; got {self.friction!r}")
+        if self.friction_sigma > 0 and (lo, hi) != (1.0, 1.0):
+            raise ValueError("Noise: give friction=(lo, hi) (uniform) or friction_sigma (lognormal), not both")
+        object.__setattr__(self, "friction", (lo, hi))
+
+    @property
+    def moves_contacts(self) -> bool:
+        """Whether contacts move on the surface (position or pose noise): needs an object."""
+        return self.position > 0 or self.rotation > 0 or self.translation > 0
+
+    @property
+    def is_zero(self) -> bool:
+        """No noise at all: every sample is the nominal grasp."""
+        return not self.moves_contacts and self.normal == 0 and not self._friction_varies
+
+    @property
+    def _friction_varies(self) -> bool:
+        return self.friction_sigma > 0 or self.friction != (1.0, 1.0)
+
+    def _flags(self) -> tuple:
+        """The static structure of the perturbation: which kinds are on."""
+        return (self.position > 0, self.rotation > 0 or self.translation > 0, self.normal > 0,
+                "lognormal" if self.friction_sigma > 0 else "uniform" if self._friction_varies else None)
+
+    def __str__(self) -> str:
+        parts = []
+        if self.position:
+            parts.append(f"position {self.position:g} R")
+        if self.normal:
+            parts.append(f"normal {self.normal:g} rad")
+        if self.friction != (1.0, 1.0):
+            parts.append(f"friction x U[{self.friction[0]:g}, {self.friction[1]:g}]")
+        if self.friction_sigma:
+            parts.append(f"friction x lognormal({self.friction_sigma:g})")
+        if self.rotation:
+            parts.append(f"rotation {self.rotation:g} rad")
+        if self.translation:
+            parts.append(f"translation {self.translation:g} R")
+        return "Noise(" + (", ".join(parts) or "none") + ")"
+
+
+class Draws(NamedTuple):
+    """Standard random numbers of ``S`` samples for grasps of ``n`` contacts in ``d`` dimensions,
+    the same for every grasp (common random numbers); each kind from its own key, so turning one
+    kind of noise on leaves the others' draws as they were.
+
+    Attributes:
+        tangent: ``(S, n, d - 1)`` standard normal: position steps in each contact's tangent frame.
+        tilt: ``(S, n, d - 1)`` standard normal: normal tilts.
+        uniform: ``(S, n)`` uniform on [0, 1): friction multipliers (uniform range).
+        normal: ``(S, n)`` standard normal: friction multipliers (lognormal).
+        rotation: ``(S, 3)`` (3D) or ``(S, 1)`` (2D) standard normal: rotation vectors.
+        translation: ``(S, d)`` standard normal: translations.
+    """
+
+    tangent: np.ndarray
+    tilt: np.ndarray
+    uniform: np.ndarray
+    normal: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
+def draws(key, samples: int, n: int, d: int, dtype=np.float64) -> Draws:
+    """The :class:`Draws` of ``key`` (a ``jax.random.key``) as NumPy arrays of ``dtype``."""
+    keys = jax.random.split(key, 6)
+    shapes = ((samples, n, d - 1), (samples, n, d - 1), (samples, n), (samples, n),
+              (samples, 3 if d == 3 else 1), (samples, d))
+    with jax.enable_x64(np.dtype(dtype) == np.float64):
+        out = [jax.random.uniform(k, s, dtype) if i == 2 else jax.random.normal(k, s, dtype)
+               for i, (k, s) in enumerate(zip(keys, shapes))]
+        return Draws(*(np.asarray(a) for a in out))
+
+
+# ---------------------------------------------------------------------------------------------
+# Perturbations (one grasp, one sample; vmapped over both).
+
+
+def _tangents(normal):
+    """``(d - 1, d)`` unit tangents of a unit ``normal: (d,)`` (``_cones.tangent_frame`` in 3D)."""
+    if normal.shape[-1] == 2:
+        return jnp.stack([-normal[1], normal[0]])[None]
+    return jnp.stack(tangent_frame(normal))
+
+
+def _rotation(w):
+    """The rotation matrix of a rotation vector ``w: (3,)`` (Rodrigues; the angle ``w[0]`` in 2D:
+    ``w: (1,)``), exact and smooth at 0."""
+    if w.shape[-1] == 1:
+        c, s = jnp.cos(w[0]), jnp.sin(w[0])
+        return jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
+    sq = jnp.sum(w * w)
+    small = sq < 1e-12
+    theta = jnp.sqrt(jnp.where(small, 1.0, sq))
+    a = jnp.where(small, 1.0 - sq / 6.0, jnp.sin(theta) / theta)
+    b = jnp.where(small, 0.5 - sq / 24.0, (1.0 - jnp.cos(theta)) / (theta * theta))
+    K = jnp.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]], w.dtype)
+    return jnp.eye(3, dtype=w.dtype) + a * K + b * (K @ K)
+
+
+def _tilt(normal, g):
+    """``normal: (d,)`` tilted by the tangent-frame vector ``g: (d - 1,)`` (radians): by the
+    angle ``|g|`` towards ``g``."""
+    normal = safe_normalize(normal)
+    t = g @ _tangents(normal)  # (d,)
+    theta = jnp.sqrt(jnp.sum(g * g))
+    ok = theta > 0
+    safe = jnp.where(ok, theta, 1.0)
+    return safe_normalize(jnp.cos(theta) * normal + jnp.where(ok, jnp.sin(theta) / safe, 1.0) * t)
+
+
+def _perturb_one(surface, contacts, points, normals, draw, sigmas, mu, *, flags):
+    """One sample of one grasp: ``(points (n, d), normals (n, d), mu (n,))``.
+
+    ``contacts``: the grasp's :class:`~grasp_jax.surfaces.Contact` (leading ``(n,)``, or ``None``
+    when contacts do not move); ``draw``: one sample of :class:`Draws`; ``sigmas``: ``(position,
+    normal, friction lo, friction hi, friction sigma, rotation, translation)`` (scaled by the
+    object's radius where they are lengths); ``flags``: :meth:`Noise._flags`.
+    """
+    position, pose, tilt, friction = flags
+    s_pos, s_normal, lo, hi, s_mu, s_rot, s_trans = sigmas
+    if position or pose:
+        embed = jax.vmap(surface.embed)
+        retract = jax.vmap(surface.retract)
+        c = contacts
+        if position:
+            _, n0 = embed(c)
+            steps = jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, jax.vmap(_tangents)(n0))
+            c = retract(c, steps)
+        if pose:
+            fingers, _ = embed(c)
+            center = jnp.asarray(surface.center, fingers.dtype)
+            R = _rotation(s_rot * draw.rotation)
+            # the object moved by x -> R (x - center) + center + t: fingers in its frame
+            target = (fingers - center - s_trans * draw.translation) @ R + center
+            for _ in range(PROJECTION_STEPS):
+                here, _ = embed(c)
+                c = retract(c, target - here)
+        points, normals = embed(c)
+    if tilt:
+        normals = jax.vmap(_tilt)(normals, s_normal * draw.tilt)
+    n = points.shape[0]
+    if friction == "uniform":
+        mu = mu * (lo + (hi - lo) * draw.uniform)
+    elif friction == "lognormal":
+        mu = mu * jnp.exp(s_mu * draw.normal)
+    else:
+        mu = jnp.full((n,), mu, points.dtype)
+    return points, normals, mu
+
+
+@functools.partial(jax.jit, static_argnames=("flags",))
+def _perturb(surface, contacts, points, normals, draw, sigmas, mu, *, flags):
+    """:func:`_perturb_one` for ``(g,)`` grasps x ``(S,)`` samples: ``(g, S, n, d)``, ``(g, S, n, d)``,
+    ``(g, S, n)``."""
+    one = functools.partial(_perturb_one, surface, flags=flags)
+    over_samples = jax.vmap(one, in_axes=(None, None, None, 0, None, None))
+    return jax.vmap(over_samples, in_axes=(0, 0, 0, None, None, None))(contacts, points, normals, draw, sigmas, mu)
+
+
+# ---------------------------------------------------------------------------------------------
+# A differentiable robust objective for the optimizer (objective="robust" of gj.optimize).
+
+#: Perturbations per step of ``gj.optimize(objective="robust")`` (a fixed sample: the same draws
+#: at every step, so the objective is a smooth function of the contacts).
+OPTIMIZE_SAMPLES = 8
+
+
+class Reparameterized(NamedTuple):
+    """The fixed draws of ``objective="robust"``: :class:`Draws` of ``K`` samples and the sigmas
+    (``_perturb_one``'s order, lengths in object radii times the radius); static flags apart."""
+
+    draw: Draws
+    sigmas: jax.Array
+
+
+def reparameterized(noise: Noise, key, samples: int, n: int, d: int, scale: float, dtype) -> Reparameterized:
+    """The draws and sigmas of ``objective="robust"`` (a pytree for the optimizer's program)."""
+    draw = draws(key, samples, n, d, dtype)
+    sigmas = np.array([noise.position * scale, noise.normal, noise.friction[0], noise.friction[1],
+                       noise.friction_sigma, noise.rotation, noise.translation * scale], dtype)
+    return Reparameterized(draw, sigmas)
+
+
+def robust_value(surface, contacts, v, mu, noise: Reparameterized, objective, *, flags):
+    """The mean of ``objective(points, normals, mu (n,))`` over the fixed perturbations of one
+    grasp, differentiable in the ambient displacement ``v: (n, d)`` (in object radii; the
+    optimizer's chart variable): each perturbed contact is ``surface.chart(c, v + step)``, with
+    ``step`` the position noise in the contact's tangent frame plus the displacement that the pose
+    noise gives its finger (first order: the tangent part moves it), normals tilted, friction per
+    contact. Returns ``(mean value, value of each perturbation (K,))``."""
+    position, pose, tilt, friction = flags
+    s_pos, s_normal, lo, hi, s_mu, s_rot, s_trans = noise.sigmas
+    here, n0 = jax.vmap(surface.embed)(contacts)
+    frames = jax.lax.stop_gradient(jax.vmap(_tangents)(n0))
+
+    def one(draw):
+        step = jnp.zeros_like(here)
+        if position:
+            step = step + jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, frames)
+        if pose:
+            center = jnp.asarray(surface.center, here.dtype)
+            R = _rotation(s_rot * draw.rotation)
+            step = step + (here - center - s_trans * draw.translation) @ R + center - here
+        points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale + step)
+        if tilt:
+            normals = jax.vmap(_tilt)(normals, s_normal * draw.tilt)
+        if friction == "uniform":
+            m = mu * (lo + (hi - lo) * draw.uniform)
+        elif friction == "lognormal":
+            m = mu * jnp.exp(s_mu * draw.normal)
+        else:
+            m = jnp.full((points.shape[0],), mu, points.dtype)
+        return objective(points, normals, m)
+
+    values = jax.vmap(one)(noise.draw)
+    return jnp.mean(values), values
+
+
+# ---------------------------------------------------------------------------------------------
+# Scoring: the single-grasp functions of evaluate and min_weight, with per-contact friction.
+
+
+def _evaluate_single(points, normals, tangents, mu, shared, *, num_edges, torque_test, contact):
+    torsion, iterations, restarts = shared  # traced: every pass runs one compiled program
+    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
+                                 contact, torsion)
+
+
+def _min_weight_single(points, normals, tangents, mu, shared, *, num_edges, contact):
+    torsion, origin, torque_scale = shared
+    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, None,
+                                   contact, torsion)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class RobustResult:
+    """What :func:`grasp_jax.robust` estimates for each grasp, from ``samples`` perturbations.
+
+    Every array field has the leading batch shape ``B`` of the grasps (NumPy arrays). Q counts 0
+    where a perturbed grasp is not in equilibrium (as :func:`grasp_jax.evaluate` reports it); the
+    min-weight margin ``l*`` counts 0 where it is not force-closure (``max(l*, 0)``), so that
+    both are "expected quality" in the sense of Dex-Net's robust metrics.
+
+    Attributes:
+        p_fc: ``B`` float: the fraction of perturbations that are force-closure, P(force-closure).
+        p_fc_se: ``B`` float: its Monte Carlo standard error, ``sqrt(p (1 - p) / samples)``.
+        q_mean: ``B`` float: mean Q.
+        q_mean_se: ``B`` float: its standard error (sample standard deviation / ``sqrt(samples)``).
+        q_low: ``B`` float: the ``quantile`` quantile of Q (NumPy's linear interpolation).
+        margin_mean, margin_mean_se, margin_low: ``B`` float: the same for ``max(l*, 0)`` of
+            :func:`grasp_jax.min_weight`; ``None`` when ``margin=False``.
+        unconverged: ``B`` int32: perturbations whose LPs did not converge (counted as not
+            force-closure, Q 0, as :func:`grasp_jax.evaluate` does).
+        samples: perturbations per grasp (static).
+        quantile: the quantile of ``q_low`` (static).
+    """
+
+    p_fc: np.ndarray
+    p_fc_se: np.ndarray
+    q_mean: np.ndarray
+    q_mean_se: np.ndarray
+    q_low: np.ndarray
+    margin_mean: np.ndarray | None
+    margin_mean_se: np.ndarray | None
+    margin_low: np.ndarray | None
+    unconverged: np.ndarray
+    samples: int = dataclasses.field(metadata=dict(static=True), default=0)
+    quantile: float = dataclasses.field(metadata=dict(static=True), default=0.1)
+
+    #: The per-grasp columns, in the order result files store them (``None`` fields left out).
+    COLUMNS = ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "margin_mean", "margin_mean_se", "margin_low",
+               "unconverged")
+
+    def columns(self) -> dict:
+        """``{name: (B,) array}`` of the fields that are there (for result files)."""
+        return {name: np.asarray(getattr(self, name)) for name in self.COLUMNS if getattr(self, name) is not None}
+
+    def __str__(self) -> str:
+        """One line, e.g. ``RobustResult(1000 grasps x 100 samples, P(FC) mean 0.62, median 0.71,
+        q_mean median 0.031, q_low(10%) median 0.004)``."""
+        p = np.asarray(self.p_fc)
+        parts = [f"{p.size:,} grasps x {self.samples} samples"]
+        if p.size:
+            parts.append(f"P(FC) mean {p.mean():.3g}, median {np.median(p):.3g}")
+            parts.append(f"q_mean median {np.median(self.q_mean):.3g}")
+            parts.append(f"q_low({100 * self.quantile:g}%) median {np.median(self.q_low):.3g}")
+            bad = int(np.sum(self.unconverged))
+            if bad:
+                parts.append(f"{bad} perturbations not converged")
+        return f"RobustResult({', '.join(parts)})"
+
+    __repr__ = __str__
+
+    def __getitem__(self, index) -> RobustResult:
+        """Index every field with the same batch index."""
+        return jax.tree_util.tree_map(lambda a: a[index], self)
+
+    def __len__(self) -> int:
+        return len(self.p_fc)
+
+
+def _stats(values: np.ndarray, quantile: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(mean, standard error, quantile)`` over the last axis (samples) of ``values: (g, S)``.
+    Taken about the first sample, so that equal samples give back exactly their value."""
+    first = values[:, :1]
+    dev = values - first
+    mean = first[:, 0] + dev.mean(axis=1)
+    se = dev.std(axis=1, ddof=1) / math.sqrt(values.shape[1])
+    low = np.quantile(values, quantile, axis=1)
+    low = np.where(np.all(dev == 0, axis=1), first[:, 0], low)
+    return mean, se, low
+
+
+def _check_key(key):
+    if is_traced(key):
+        raise ValueError("key must be a concrete jax.random.key (robust and perturb run outside jit)")
+    try:
+        key = jnp.asarray(key)
+        if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+            if key.shape != (2,) or key.dtype != jnp.uint32:
+                raise TypeError
+            key = jax.random.wrap_key_data(key)
+    except TypeError:
+        raise ValueError(f"key must be a jax.random.key(seed) (or a legacy PRNGKey); got {key!r}") from None
+    if key.shape != ():
+        raise ValueError(f"key must be one key; got a batch of shape {key.shape}")
+    return key
+
+
+class _Perturber:
+    """The perturbations of one call: validated grasps, the surface, the draws; called on a slice
+    of grasps, gives their perturbed copies (NumPy)."""
+
+    def __init__(self, obj, points, normals, mu, noise, key, samples, num_edges=DEFAULT_NUM_EDGES, torsion=None,
+                 normal_kind="flat"):
+        if not isinstance(noise, Noise):
+            raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
+        self.samples = check_int("samples", samples, 1)
+        key = _check_key(key)
+        points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None, torsion)
+        if is_traced(points, normals, mu):
+            raise ValueError("robust and perturb run on concrete arrays (outside jit, grad and vmap)")
+        n, d = points.shape[-2:]
+        self.surface = None
+        if noise.moves_contacts:
+            if obj is None:
+                raise ValueError(f"{noise} moves contacts over the object: pass the object (or its surface), "
+                                 "not None")
+            from ._optimize import _surface
+
+            self.surface = _surface(obj, normal_kind)
+            if self.surface.dim != d:
+                raise ValueError(f"the object is {self.surface.dim}D but the grasps are {d}D")
+        self.scale = 1.0 if self.surface is None else float(self.surface.scale)
+        self.noise, self.batch, self.mu, self.scope, self.num_edges = noise, batch, mu, scope, num_edges
+        self.dtype = points.dtype
+        self.total = int(np.prod(batch, dtype=np.int64))
+        self.points = points.reshape(self.total, n, d)
+        self.normals = normals.reshape(self.total, n, d)
+        self.draw = draws(key, self.samples, n, d, self.dtype)
+        self.per = max(1, ROWS // self.samples)  # grasps per slice: ROWS perturbed grasps
+        self.sigmas = np.array([noise.position * self.scale, noise.normal, noise.friction[0], noise.friction[1],
+                                noise.friction_sigma, noise.rotation, noise.translation * self.scale], self.dtype)
+
+    def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grasps ``start..stop`` (of the flattened batch) perturbed: ``(g, S, n, d)`` points and
+        normals, ``(g, S, n)`` friction coefficients. Call inside ``self.scope``."""
+        p, nrm = self.points[start:stop], self.normals[start:stop]
+        g, (n, d), S = len(p), p.shape[1:], self.samples
+        if self.noise.is_zero:  # every sample is the nominal grasp, bit for bit
+            return (np.broadcast_to(p[:, None], (g, S, n, d)), np.broadcast_to(nrm[:, None], (g, S, n, d)),
+                    np.full((g, S, n), self.mu, self.dtype))
+        contacts = None
+        if self.surface is not None:
+            located = self.surface.locate(p)
+            contacts = type(located)(np.asarray(located.face), np.asarray(located.coords, self.dtype))
+        # Pieces of one padded size whatever the batch: one compiled perturbation per surface and
+        # sample count, and bit for bit the same perturbations of a grasp in any batch (XLA's
+        # programs of two sizes can round differently in the last bit).
+        size = self.per
+        pieces = []
+        for lo in range(0, g, size):
+            hi = min(lo + size, g)
+            pad = lambda a, lo=lo, hi=hi: pad_rows(a[lo:hi], size)  # noqa: E731
+            args = (None if contacts is None else jax.tree_util.tree_map(pad, contacts), pad(p), pad(nrm))
+            out = _perturb(self.surface, *args, self.draw, self.sigmas, jnp.asarray(self.mu, self.dtype),
+                           flags=self.noise._flags())
+            pieces.append(tuple(np.asarray(a)[:hi - lo] for a in out))
+        return tuple(np.concatenate(a) if len(pieces) > 1 else a[0] for a in zip(*pieces))
+
+
+def perturb(obj, points, normals, *, mu, noise: Noise, key, samples: int = 100, surface_normals: str = "flat"):
+    """The perturbed grasps :func:`robust` scores (the same draws from the same key).
+
+    Args:
+        obj, points, normals, mu, noise, key, samples, surface_normals: as :func:`robust`
+            (``samples >= 1``).
+
+    Returns:
+        ``(points, normals, mu)``: ``(..., S, n, d)`` perturbed contact points and normals and
+        ``(..., S, n)`` friction coefficients, one per contact, NumPy arrays.
+    """
+    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, normal_kind=surface_normals)
+    with perturber.scope:
+        if perturber.surface is not None:
+            perturber.surface = jax.device_put(perturber.surface)
+        p, n, m = perturber(0, perturber.total)
+    lead = perturber.batch + (perturber.samples,)
+    return p.reshape(lead + p.shape[2:]), n.reshape(lead + n.shape[2:]), m.reshape(lead + m.shape[2:])
+
+
+def robust(
+    obj,
+    points,
+    normals,
+    *,
+    mu,
+    noise: Noise,
+    key,
+    samples: int = 100,
+    quantile: float = 0.1,
+    num_edges: int = DEFAULT_NUM_EDGES,
+    torque_test: str = "exact",
+    contact: str = "hard",
+    torsion=None,
+    margin: bool = True,
+    torque_scale: float | None = None,
+    progress: bool = False,
+    surface_normals: str = "flat",
+) -> RobustResult:
+    """Robust labels of a batch of grasps: P(force-closure), mean and low quantile of Q and of
+    the min-weight margin under ``noise``, with Monte Carlo standard errors.
+
+    Every grasp is scored under the same ``samples`` perturbations (common random numbers, drawn
+    from ``key``; the result is reproducible from it and does not depend on the batch it is in;
+    :func:`perturb` gives the perturbed grasps). Grasps x samples are scored by the programs of
+    :func:`grasp_jax.evaluate` (and :func:`grasp_jax.min_weight`) through the one batching path,
+    :data:`ROWS` perturbed grasps at a time. With zero noise every sample is the nominal grasp:
+    ``p_fc`` is its verdict (0 or 1) and ``q_mean == q_low`` its Q, exactly.
+
+    Args:
+        obj: the object the grasps are on (:mod:`grasp_jax.objects`) or its
+            :class:`~grasp_jax.surfaces.Surface`; may be ``None`` where the noise moves no
+            contact (only ``normal`` and friction noise).
+        points: ``(..., n, d)`` contact points on the object's surface, ``d`` in {2, 3}.
+        normals: ``(..., n, d)`` outward normals. Where contacts move, the perturbed normals are
+            the surface's at the new contacts.
+        mu: nominal friction coefficient > 0.
+        noise: a :class:`Noise`.
+        key: a ``jax.random.key``.
+        samples: perturbations per grasp (>= 2).
+        quantile: the low quantile of ``q_low`` and ``margin_low``, in [0, 1] (10% by default).
+        num_edges, torque_test, contact, torsion: as :func:`grasp_jax.evaluate` (``torsion``
+            stays fixed while friction varies).
+        margin: also estimate the min-weight margin (about a third more time).
+        torque_scale: the length torques are divided by in the min-weight margin (default the
+            object's radius, else 1).
+        progress: a progress bar over slices of grasps.
+        surface_normals: the normals of moved contacts on meshes and polygons: ``"flat"`` (face
+            normals, as :mod:`grasp_jax.sampling` gives them, the default) or ``"smooth"``
+            (interpolated, as :func:`grasp_jax.optimize` uses by default); analytic shapes have
+            exact normals.
+
+    Returns:
+        :class:`RobustResult` whose fields have the leading batch shape.
+
+    Raises:
+        ValueError: bad shapes or values, a negative sigma (:class:`Noise`), or noise that moves
+            contacts without an object.
+    """
+    samples = check_int("samples", samples, 2, " (a standard error needs two samples)")
+    quantile = check_scalar("quantile", quantile, positive=False, minimum=0.0)
+    if quantile > 1:
+        raise ValueError(f"quantile must be in [0, 1]; got {quantile!r}")
+    if torque_test not in ("exact", "paper"):
+        raise ValueError(f"torque_test must be 'exact' or 'paper'; got {torque_test!r}")
+    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion, surface_normals)
+    dtype, total, d = perturber.dtype, perturber.total, perturber.points.shape[-1]
+    contact, torsion = check_contact(contact, torsion, d)
+    torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
+    num_edges = perturber.num_edges
+    evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+    weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
+    budget, retry = _passes(perturber.points, num_edges, None, contact)
+    per = perturber.per
+    fields = {name: [] for name in RobustResult.COLUMNS}
+    starts = range(0, total, per)
+    if progress:
+        from tqdm.auto import tqdm
+
+        starts = tqdm(starts, unit="slice", desc=f"robust: {total:,} grasps x {samples}")
+    stuck = 0  # min-weight LPs that did not converge
+    with perturber.scope:
+        surface = perturber.surface
+        if surface is not None:
+            surface = perturber.surface = jax.device_put(surface)
+        t = jnp.asarray(torsion, dtype)
+        shared = (t, *budget)
+        retries = tuple(Retry((t, *pass_), _unfinished) for pass_ in retry)
+        center = np.zeros(d) if surface is None else surface.center
+        weight_shared = (t, jnp.asarray(center, dtype), jnp.asarray(torque_scale, dtype))
+        for start in starts:
+            stop = min(start + per, total)
+            g = stop - start
+            pp, nn, mm = perturber(start, stop)
+            res = map_grasps(evaluate_fn, (pp, nn, None, mm), shared, (g, samples), retry=retries)
+            fc = np.asarray(res.force_closure)
+            fields["p_fc"].append(fc.mean(axis=1))
+            fields["unconverged"].append((~np.asarray(res.converged)).sum(axis=1).astype(np.int32))
+            for name, value in zip(("q_mean", "q_mean_se", "q_low"), _stats(np.asarray(res.quality), quantile)):
+                fields[name].append(value)
+            if margin:
+                l_star, status = map_grasps(weight_fn, (pp, nn, None, mm), weight_shared, (g, samples))
+                stuck += int(np.sum(np.asarray(status) == Status.NOT_CONVERGED))
+                for name, value in zip(("margin_mean", "margin_mean_se", "margin_low"),
+                                       _stats(np.maximum(np.asarray(l_star), 0.0), quantile)):
+                    fields[name].append(value)
+    out = {}
+    for name in RobustResult.COLUMNS:
+        parts = fields[name]
+        if (name.startswith("margin") and not margin) or name == "p_fc_se":
+            out[name] = None
+            continue
+        dt = np.int32 if name == "unconverged" else dtype
+        value = np.concatenate(parts) if parts else np.zeros(0, dt)
+        out[name] = value.reshape(perturber.batch)
+    p = out["p_fc"]
+    out["p_fc_se"] = np.sqrt(p * (1.0 - p) / samples)
+    result = RobustResult(**out, samples=samples, quantile=quantile)
+    bad = int(np.sum(result.unconverged))
+    if bad or stuck:
+        warnings.warn(f"robust: {bad} evaluations and {stuck} min-weight LPs of {total * samples:,} perturbed grasps "
+                      "did not converge in the iteration budget; they count as not force-closure with Q 0 "
+                      "(margin 0); see RobustResult.unconverged", RuntimeWarning, stacklevel=2)
+    return result

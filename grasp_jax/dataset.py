@@ -1,0 +1,504 @@
+"""Grasp datasets over many objects: one configuration, one Parquet dataset partitioned by object.
+
+:func:`build` runs the sampling pipeline (:func:`grasp_jax.pipeline.run`, with robust labels
+where asked) on every object of a folder of meshes or of a manifest file, and writes::
+
+    DIR/_manifest.json                configuration, versions, per-object status and counts
+    DIR/object=<name>/part.parquet    the object's grasps (written atomically)
+    DIR/_objects/<name>.json          the object's status record (written atomically)
+
+``DIR`` is a hive-partitioned Parquet dataset: ``pyarrow.dataset.dataset(DIR,
+partitioning="hive")``, ``pandas.read_parquet(DIR)``, ``polars.scan_parquet(DIR + "/*/*.parquet",
+hive_partitioning=True)`` and DuckDB's ``read_parquet('DIR/*/*.parquet', hive_partitioning=true)``
+read it without grasp_jax (the files and folders that start with ``_`` or ``.`` are not data).
+
+Resuming. An object is done when its part and a ``done`` record exist; a run started again on the
+same ``DIR`` skips the done objects and does the others (failed ones again). A part is published
+by one ``os.replace`` after it is complete, and its record after it, so a run killed at any point
+(SIGTERM, ``kill -9``) leaves each object either done or to do again, never half written and never
+in two parts. The configuration is stored in the manifest; a run with another configuration stops
+with an error instead of mixing the two.
+
+Sharding. ``shard=(i, N)`` does the objects ``i, i + N, i + 2N, ...`` of the sorted list; the
+shards of a SLURM array (``SLURM_ARRAY_TASK_ID`` / ``SLURM_ARRAY_TASK_COUNT``, read by
+:func:`shard_from_environment`) or of any launcher write into the same ``DIR`` without waiting for
+each other. Every process rewrites ``_manifest.json`` from all records, under a lock, every
+:data:`MANIFEST_EVERY` seconds and when it ends; the last to finish leaves it complete (the
+records are what resuming reads). The manifest's name starts with ``_`` so that Parquet readers
+given ``DIR`` skip it, as they skip Spark's ``_SUCCESS``.
+
+Objects in one process share the compiled scoring programs (one per grasp shape); robust labels
+with noise that moves contacts compile a small perturbation program per mesh size (about a second).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: Mesh files a folder of objects is made of (any format trimesh reads; by suffix, lower case).
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae", ".3mf")
+MANIFEST = "_manifest.json"  # "_": readers of the Parquet dataset skip it (as Spark's _SUCCESS)
+RECORDS = "_objects"
+PART = "part.parquet"
+#: Settings that must match for a run to add to an existing dataset.
+CONFIG_KEYS = ("fingers", "num", "seed", "scheme", "mu", "edges", "torque_test", "contact", "torsion", "robust")
+
+
+class DatasetError(ValueError):
+    """A dataset that cannot be built as asked (one sentence)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectEntry:
+    """One object of a dataset: its partition ``name``, where it comes from and its scale."""
+
+    name: str
+    spec: str
+    scale: float = 1.0
+
+
+def _partition_name(text: str) -> str:
+    """A folder-safe partition value: letters, digits, ``_ - .``; others become ``_``."""
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", text).strip(".") or "object"
+    return name if not name.startswith("_") else "o" + name
+
+
+def list_objects(source) -> list[ObjectEntry]:
+    """The objects of a folder of mesh files (sorted by name) or of a manifest text file.
+
+    A manifest has one object per line: a mesh path (relative to the manifest's folder) or a
+    built-in name, optionally followed by a scale factor (``meshes/mug.obj 0.001``); blank lines
+    and ``#`` comments are skipped. Objects are named by the file's stem (a built-in by its name).
+
+    Raises:
+        DatasetError: a missing source, an empty folder or manifest, a bad line, two objects of
+            one name.
+    """
+    source = Path(source)
+    entries = []
+    if source.is_dir():
+        files = sorted(f for f in source.iterdir() if f.is_file() and f.suffix.lower() in MESH_SUFFIXES)
+        if not files:
+            raise DatasetError(f"{str(source)!r} holds no mesh files ({', '.join(MESH_SUFFIXES)}); give a folder "
+                               "of meshes or a manifest file")
+        entries = [ObjectEntry(_partition_name(f.stem), str(f.resolve())) for f in files]
+    elif source.is_file():
+        from .objects import BUILTIN_NAMES
+
+        for number, line in enumerate(source.read_text().splitlines(), 1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            parts = text.rsplit(None, 1)
+            scale = 1.0
+            if len(parts) == 2:
+                try:
+                    scale = float(parts[1])
+                except ValueError:
+                    parts = [text]  # a path with a space in it
+                else:
+                    if not (math.isfinite(scale) and scale > 0):
+                        raise DatasetError(f"{source}:{number}: the scale must be a number > 0; got {parts[1]!r}")
+            spec = parts[0]
+            if spec.lower() in BUILTIN_NAMES and not (source.parent / spec).exists():
+                entries.append(ObjectEntry(_partition_name(spec.lower()), spec.lower(), scale))
+                continue
+            path = Path(spec).expanduser()
+            path = path if path.is_absolute() else source.parent / path
+            entries.append(ObjectEntry(_partition_name(path.stem), str(path.resolve()), scale))
+        if not entries:
+            raise DatasetError(f"manifest {str(source)!r} lists no objects")
+    else:
+        raise DatasetError(f"{str(source)!r} is neither a folder of meshes nor a manifest file")
+    seen = {}
+    for e in entries:
+        if e.name in seen:
+            raise DatasetError(f"two objects would be named {e.name!r}: {seen[e.name]} and {e.spec}; rename one")
+        seen[e.name] = e.spec
+    return entries
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"i/N"`` -> ``(i, N)`` with ``0 <= i < N``."""
+    match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", str(text))
+    if not match or not int(match[2]) or int(match[1]) >= int(match[2]):
+        raise DatasetError(f"shard must be i/N with 0 <= i < N (for example 0/4); got {text!r}")
+    return int(match[1]), int(match[2])
+
+
+def shard_from_environment(environ=None) -> tuple[int, int] | None:
+    """The shard of a SLURM array task: ``(SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN,
+    SLURM_ARRAY_TASK_COUNT)``; ``None`` outside an array."""
+    env = os.environ if environ is None else environ
+    if "SLURM_ARRAY_TASK_ID" not in env:
+        return None
+    try:
+        task = int(env["SLURM_ARRAY_TASK_ID"]) - int(env.get("SLURM_ARRAY_TASK_MIN", 0))
+        count = int(env.get("SLURM_ARRAY_TASK_COUNT", 0))
+    except ValueError:
+        raise DatasetError("SLURM_ARRAY_TASK_ID, SLURM_ARRAY_TASK_MIN and SLURM_ARRAY_TASK_COUNT must be "
+                           "integers") from None
+    if count < 1 or not 0 <= task < count:
+        raise DatasetError(f"SLURM array task {task} of {count}: run a contiguous array (--array=0-{max(count, 1) - 1}) "
+                           "or pass --shard i/N")
+    return task, count
+
+
+def versions() -> dict:
+    """Versions of grasp_jax, Python and the libraries the results depend on."""
+    from importlib import metadata
+
+    from . import __version__
+
+    out = {"grasp_jax": __version__, "python": sys.version.split()[0]}
+    for name in ("jax", "jaxlib", "numpy", "trimesh", "pyarrow"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Files
+
+
+def _write_json(path: Path, data: dict) -> None:
+    """``data`` to ``path`` atomically (a temporary file renamed into place)."""
+    from .storage import _fsync_dir, write_atomically
+
+    write_atomically(path, lambda f: f.write(json.dumps(data, indent=1, default=str) + "\n"), what="dataset file")
+    _fsync_dir(path.parent)
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"cannot read {str(path)!r} ({exc}); remove it to start that part again") from None
+
+
+@contextlib.contextmanager
+def _locked(directory: Path):
+    """An exclusive lock on ``directory/.lock`` (``fcntl.flock``; none where it is missing)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(directory / ".lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def part_path(out: Path, name: str) -> Path:
+    """Where the grasps of object ``name`` go: ``out/object=<name>/part.parquet``."""
+    return Path(out) / f"object={name}" / PART
+
+
+def _records(out: Path) -> dict:
+    folder = out / RECORDS
+    if not folder.is_dir():
+        return {}
+    found = {}
+    for f in sorted(folder.glob("*.json")):
+        record = _read_json(f)
+        if record is not None:
+            found[record.get("name", f.stem)] = record
+    return found
+
+
+def _manifest(out: Path, config: dict) -> dict:
+    records = _records(out)
+    done = sum(r.get("status") == "done" for r in records.values())
+    return {
+        "format": "grasp_jax dataset 1",
+        "config": config,
+        "versions": versions(),
+        "updated": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "objects_done": done,
+        "objects_failed": sum(r.get("status") == "failed" for r in records.values()),
+        "grasps": int(sum(r.get("num", 0) for r in records.values() if r.get("status") == "done")),
+        "objects": records,
+    }
+
+
+def _start(out: Path, config: dict) -> None:
+    """Create ``out`` (or check that its configuration is ``config``) and write the manifest."""
+    try:
+        (out / RECORDS).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"cannot create the dataset folder {str(out)!r}: {exc.strerror or exc}") from None
+    with _locked(out):
+        old = _read_json(out / MANIFEST)
+        if old is not None and old.get("config") != config:
+            stored = old.get("config") or {}
+            diff = [k for k in sorted(set(stored) | set(config)) if stored.get(k) != config.get(k)]
+            raise DatasetError(f"{str(out)!r} holds a dataset of another configuration (differs in "
+                               f"{', '.join(diff)}); give another --out or the same settings")
+        _write_json(out / MANIFEST, _manifest(out, config))
+
+
+#: Seconds between rewrites of the manifest while a run goes on (it is rewritten at the end too;
+#: the records are what resuming reads).
+MANIFEST_EVERY = 30.0
+
+
+def _write_manifest(out: Path, config: dict) -> None:
+    with _locked(out):
+        _write_json(out / MANIFEST, _manifest(out, config))
+
+
+def _is_done(out: Path, entry: ObjectEntry) -> bool:
+    record = _read_json(out / RECORDS / f"{entry.name}.json")
+    return bool(record) and record.get("status") == "done" and part_path(out, entry.name).is_file()
+
+
+def _clean_temporaries(folder: Path) -> None:
+    """The hidden temporary files a killed writer of this object left behind."""
+    if folder.is_dir():
+        for f in folder.glob(f".{PART}.*.tmp"):
+            f.unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Building
+
+
+@dataclasses.dataclass
+class DatasetSummary:
+    """What one :func:`build` call did.
+
+    Attributes:
+        out: the dataset folder.
+        shard: ``(i, N)`` of this process.
+        done: names of the objects done by this call.
+        skipped: names already done before it (resumed).
+        failed: ``{name: reason}`` of the objects that failed in this call.
+        rows: ``{name: record}`` of every object of this shard that is done (grasps, force-closure
+            rate, Q, P(force-closure) ...).
+        seconds: wall time.
+    """
+
+    out: Path
+    shard: tuple[int, int]
+    done: list
+    skipped: list
+    failed: dict
+    rows: dict
+    seconds: float
+
+    def format(self) -> str:
+        """A table of the shard's objects and a one-line total."""
+        lines = [f"{'object':<28} {'status':<7} {'grasps':>8} {'FC %':>6} {'Q p50':>7} {'P(FC)':>6}"]
+        for name, r in sorted(self.rows.items()):
+            if r.get("status") == "done":
+                p = r.get("p_fc_mean")
+                lines.append(f"{name[:28]:<28} {'done':<7} {r['num']:>8,} {100 * r['force_closure_rate']:>6.1f} "
+                             f"{r.get('quality_p50', math.nan):>7.3f} {'' if p is None else format(p, '6.3f'):>6}")
+            else:
+                lines.append(f"{name[:28]:<28} {'failed':<7} {r.get('reason', '')}")
+        i, n = self.shard
+        lines.append(f"dataset        {self.out}: {len(self.done)} objects done, {len(self.skipped)} already done, "
+                     f"{len(self.failed)} failed (shard {i}/{n}) in {self.seconds:.1f} s")
+        return "\n".join(lines)
+
+
+def config_of(*, fingers: int, num: int, seed: int, scheme: str, mu: float, num_edges: int, torque_test: str,
+              contact: str, torsion, robust) -> dict:
+    """The dataset's configuration (:data:`CONFIG_KEYS`), as stored in the manifest."""
+    return json.loads(json.dumps({"fingers": int(fingers), "num": int(num), "seed": int(seed), "scheme": scheme, "mu": float(mu),
+            "edges": int(num_edges), "torque_test": torque_test, "contact": contact,
+            "torsion": None if torsion is None else float(torsion),
+            "robust": None if robust is None else robust.to_dict()}))  # as the manifest reads back
+
+
+def _load(entry: ObjectEntry):
+    from . import objects
+
+    obj = objects.load(entry.spec)
+    if entry.scale != 1.0:
+        mesh = getattr(obj, "mesh", None)
+        if mesh is None:
+            raise DatasetError(f"{entry.spec}: only meshes can be scaled")
+        obj = objects.Mesh.from_trimesh(mesh.copy().apply_scale(entry.scale), name=obj.name, where=entry.spec)
+    if obj.dim != 3:
+        raise DatasetError(f"{entry.spec}: a {obj.dim}D object; a dataset's objects are 3D meshes or shapes")
+    return obj
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if isinstance(exc, ValueError) else f"{type(exc).__name__}: {text}"
+
+
+def build(
+    source,
+    out,
+    *,
+    num: int = 10_000,
+    fingers: int = 4,
+    mu: float = 0.364,
+    num_edges: int = 8,
+    seed: int = 0,
+    scheme: str = "uniform",
+    torque_test: str = "exact",
+    contact: str = "hard",
+    torsion: float | None = None,
+    robust=None,
+    chunk: int | None = None,
+    shard: tuple[int, int] | None = None,
+    progress: bool = False,
+) -> DatasetSummary:
+    """Sample and score ``num`` grasps of every object of ``source`` into the dataset ``out``.
+
+    Args:
+        source: a folder of mesh files or a manifest file (:func:`list_objects`).
+        out: the dataset folder (created; an existing one is resumed if its configuration is this).
+        num, fingers, mu, num_edges, seed, scheme, torque_test, contact, torsion, chunk: as
+            :func:`grasp_jax.pipeline.run`, the same for every object.
+        robust: :class:`grasp_jax.pipeline.RobustLabels` to add robust labels (its ``obj`` is
+            set per object).
+        shard: ``(i, N)``: this process does objects ``i::N`` (default: from the SLURM array
+            variables, else all).
+        progress: a progress bar over the objects.
+
+    Returns:
+        :class:`DatasetSummary`. An object that cannot be read or scored is recorded as failed
+        with its reason, and the others are done.
+
+    Raises:
+        DatasetError: no objects, a bad shard, a dataset of another configuration at ``out``.
+    """
+    from . import pipeline
+
+    t0 = time.perf_counter()
+    entries = list_objects(source)
+    shard = shard if shard is not None else shard_from_environment() or (0, 1)
+    i, n = shard
+    if not (isinstance(i, int) and isinstance(n, int) and 0 <= i < n):
+        raise DatasetError(f"shard must be (i, N) with 0 <= i < N; got {shard!r}")
+    mine = entries[i::n]
+    out = Path(out)
+    config = config_of(fingers=fingers, num=num, seed=seed, scheme=scheme, mu=mu, num_edges=num_edges,
+                       torque_test=torque_test, contact=contact, torsion=torsion, robust=robust)
+    if robust is not None and robust.obj is not None:
+        raise DatasetError("the robust labels of a dataset take each object in turn: leave RobustLabels.obj unset")
+    _start(out, config)
+    summary = DatasetSummary(out, shard, [], [], {}, {}, 0.0)
+    items = mine
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = items = tqdm(mine, unit="object", desc=f"dataset {out.name}" + (f" {i}/{n}" if n > 1 else ""),
+                           dynamic_ncols=True)
+    written = time.monotonic()
+    try:
+        for entry in items:
+            if bar is not None:
+                bar.set_postfix_str(entry.name[:24], refresh=True)
+            if _is_done(out, entry):
+                summary.skipped.append(entry.name)
+                summary.rows[entry.name] = _read_json(out / RECORDS / f"{entry.name}.json")
+                continue
+            record = _build_one(entry, out, pipeline, num=num, fingers=fingers, mu=mu, num_edges=num_edges,
+                                seed=seed, scheme=scheme, torque_test=torque_test, contact=contact, torsion=torsion,
+                                robust=robust, chunk=chunk)
+            _write_json(out / RECORDS / f"{entry.name}.json", record)  # after the part: the object is done
+            summary.rows[entry.name] = record
+            if record["status"] == "done":
+                summary.done.append(entry.name)
+            else:
+                summary.failed[entry.name] = record["reason"]
+            if time.monotonic() - written > MANIFEST_EVERY:
+                _write_manifest(out, config)
+                written = time.monotonic()
+    finally:
+        if bar is not None:
+            bar.close()
+        _write_manifest(out, config)
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -> dict:
+    """Sample, score and write one object; its record (``done`` or ``failed`` with the reason)."""
+    t0 = time.perf_counter()
+    record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
+    path = part_path(out, entry.name)
+    try:
+        obj = _load(entry)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _clean_temporaries(path.parent)
+        labels = None if robust is None else dataclasses.replace(robust, obj=obj)
+        result = pipeline.run(obj, out=path, object_spec=entry.spec, robust=labels, **settings)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure of one object is recorded, the others go on
+        record.update(status="failed", reason=_one_line(exc), seconds=time.perf_counter() - t0)
+        return record
+    record.update(
+        status="done", part=str(path.relative_to(out)), num=int(result.num), force_closure=int(result.force_closure),
+        force_closure_rate=float(result.force_closure_rate), unconverged=int(result.unconverged),
+        quality_p50=_finite(result.quality_percentiles.get(50)), quality_mean=_finite(result.quality_mean),
+        radius=float(obj.radius), seconds=time.perf_counter() - t0,
+    )
+    if result.robust is not None:
+        record.update(p_fc_mean=_finite(result.robust["p_fc_mean"]),
+                      p_fc_mean_nominal_fc=_finite(result.robust["p_fc_mean_nominal_fc"]),
+                      q_mean_mean=_finite(result.robust["q_mean_mean"]))
+    return record
+
+
+def _finite(x) -> float | None:
+    x = float(x) if x is not None else math.nan
+    return x if math.isfinite(x) else None
+
+
+def read(out, columns=None):
+    """The dataset as one ``pyarrow.Table`` with an ``object`` column (hive partitioning), rows
+    in object order then grasp order."""
+    import pyarrow as pa
+    import pyarrow.dataset as ds
+
+    parts = sorted(Path(out).glob(f"object=*/{PART}"))
+    if not parts:
+        raise DatasetError(f"{str(out)!r} holds no object parts")
+    tables = []
+    for part in parts:
+        table = ds.dataset(part, format="parquet").to_table(columns=columns)
+        name = part.parent.name.split("=", 1)[1]
+        tables.append(table.append_column("object", pa.array(np.full(len(table), name))))
+    return pa.concat_tables(tables)
+
+
+__all__ = [
+    "MESH_SUFFIXES",
+    "DatasetError",
+    "DatasetSummary",
+    "ObjectEntry",
+    "build",
+    "config_of",
+    "list_objects",
+    "parse_shard",
+    "part_path",
+    "read",
+    "shard_from_environment",
+    "versions",
+]

@@ -1,0 +1,49 @@
+"""``grasp-jax sample / score --robust N``: robust columns beside the nominal ones, through the
+streaming pipeline, equal to :func:`grasp_jax.robust` of the same grasps (run as subprocesses,
+one device, as ``test_cli.py`` runs the command line)."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+import grasp_jax as gj
+from grasp_jax import objects, storage
+
+from test_cli import env, grasp_jax  # noqa: F401 - the fixture and the runner
+
+NOISE = ["--sigma-pos", "0.02", "--mu-range", "0.8,1.2", "--sigma-pose", "0.02,0.01"]
+ROBUST = ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "robust_unconverged")
+
+
+def test_sample_and_score_write_robust_columns(env, tmp_path):  # noqa: F811
+    out = grasp_jax("sample", "sphere", "--num", "300", "--seed", "3", "--robust", "8", *NOISE, "--no-margin",
+                    "--chunk", "150", "--devices", "1", "--out", "s.npz", env=env, cwd=tmp_path)
+    assert "robust         8 perturbations" in out.stdout and "P(FC) mean" in out.stdout
+    a, meta = storage.read_results(tmp_path / "s.npz")
+    assert set(ROBUST) <= set(a) and "margin_mean" not in a
+    assert meta["robust"]["samples"] == 8 and meta["robust"]["noise"]["position"] == 0.02
+    assert meta["robust"]["noise"]["friction"] == [0.8, 1.2] and meta["robust"]["seed"] == 3
+    # the same labels from Python (one key for every chunk: they do not depend on the chunk size)
+    res = gj.robust(objects.Sphere(), a["points"], a["normals"], mu=0.364, key=jax.random.key(3), samples=8,
+                    noise=gj.Noise(position=0.02, friction=(0.8, 1.2), rotation=0.02, translation=0.01),
+                    margin=False)
+    np.testing.assert_array_equal(a["p_fc"], res.p_fc)
+    np.testing.assert_allclose(a["q_mean"], res.q_mean, rtol=1e-9, atol=1e-12)  # another program: LP tolerance
+    assert 0 < a["p_fc"].mean() < 1 and np.all(a["p_fc"][~a["force_closure"]] <= 1)
+    # score the file again with the same noise and seed: the same labels, beside the nominal columns
+    grasp_jax("score", "s.npz", "--robust", "8", *NOISE, "--robust-seed", "3", "--no-margin", "--devices", "1",
+              "--out", "r.parquet", "--quiet", env=env, cwd=tmp_path)
+    b, meta_b = storage.read_results(tmp_path / "r.parquet")
+    for name in ROBUST + ("force_closure", "quality"):
+        np.testing.assert_array_equal(b[name], a[name], err_msg=name)
+    assert meta_b["robust"] == meta["robust"]
+
+
+def test_score_without_an_object_for_moving_noise(env, tmp_path):  # noqa: F811
+    p = np.random.default_rng(0).normal(size=(10, 4, 3))
+    np.savez(tmp_path / "plain.npz", points=p, normals=p)
+    out = grasp_jax("score", "plain.npz", "--robust", "4", "--sigma-pos", "0.1", env=env, cwd=tmp_path,
+                    check=False)
+    assert out.returncode == 2 and out.stderr.strip().startswith("grasp-jax: error: the file names no object")
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["plain.npz"]
