@@ -412,6 +412,10 @@ def _stats(values: np.ndarray, quantile: float) -> tuple[np.ndarray, np.ndarray,
 def _check_key(key):
     if is_traced(key):
         raise ValueError("key must be a concrete jax.random.key (robust and perturb run outside jit)")
+    if isinstance(key, (int, np.integer)) and not isinstance(key, bool):  # a seed, as gj.optimize takes
+        if key < 0:
+            raise ValueError(f"key must be a jax.random.key or a non-negative integer seed; got {key!r}")
+        return jax.random.key(int(key))
     try:
         key = jnp.asarray(key)
         if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
@@ -419,7 +423,8 @@ def _check_key(key):
                 raise TypeError
             key = jax.random.wrap_key_data(key)
     except TypeError:
-        raise ValueError(f"key must be a jax.random.key(seed) (or a legacy PRNGKey); got {key!r}") from None
+        raise ValueError(f"key must be a jax.random.key(seed), a legacy PRNGKey or a non-negative integer seed; "
+                         f"got {key!r}") from None
     if key.shape != ():
         raise ValueError(f"key must be one key; got a batch of shape {key.shape}")
     return key

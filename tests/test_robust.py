@@ -125,6 +125,9 @@ def test_common_random_numbers_and_reproducibility(box, box_grasps):
     np.testing.assert_array_equal(mm2[0], mm2[2])
     other = gj.perturb(box, p[:3], n[:3], mu=MU, noise=noise, key=jax.random.key(12), samples=8)[0]
     assert not np.allclose(other, pp2)
+    # an integer seed is jax.random.key(seed), as in gj.optimize
+    seeded = gj.perturb(box, p[:3], n[:3], mu=MU, noise=noise, key=12, samples=8)[0]
+    np.testing.assert_array_equal(seeded, other)
 
 
 def test_friction_distributions(box_grasps):
@@ -199,7 +202,9 @@ def test_bad_arguments(box, box_grasps, monkeypatch):
     with pytest.raises(ValueError, match="quantile must be in"):
         gj.robust(box, p, n, **call, quantile=1.5)
     with pytest.raises(ValueError, match="key must be"):
-        gj.robust(box, p, n, mu=MU, noise=NOISE, key=3)
+        gj.robust(box, p, n, mu=MU, noise=NOISE, key=-3)
+    with pytest.raises(ValueError, match="key must be"):
+        gj.robust(box, p, n, mu=MU, noise=NOISE, key="seven")
     with pytest.raises(TypeError, match="noise must be a grasp_jax.Noise"):
         gj.robust(box, p, n, mu=MU, noise={"position": 0.1}, key=key)
     with pytest.raises(ValueError, match="mu must be a finite number > 0"):
