@@ -802,14 +802,66 @@ def _cmd_show(args) -> int:
     if plot is not None:
         plot_best(obj, best, mu=mu, num_edges=edges, path=plot,
                   title=f"{obj.name}: best {len(best)} grasps of {args.file.name}")
+        robust_plot = plot_robust(args.file, plot.with_name(plot.stem + ".robust" + plot.suffix))
     print("rank  grasp        Q")
     for r, (i, q) in enumerate(zip(best.index, best.quality), 1):
         print(f"{r:4d}  {int(i):9d}  {q:.4f}")
     if plot is not None:
         print(f"figure {plot}")
+        if robust_plot is not None:
+            print(f"figure {robust_plot} (nominal Q against P(force-closure))")
     if page is not None:
         print(f"page   {page}")
     return 0
+
+
+#: Most grasps drawn in the scatter of :func:`plot_robust` (a seeded random subset beyond).
+ROBUST_SCATTER = 20000
+
+
+def plot_robust(file: Path, path: Path) -> Path | None:
+    """Nominal Q against P(force-closure) of a result file with robust labels (``--robust N``:
+    column ``p_fc``), and the histogram of P(force-closure) of the nominally force-closure grasps
+    and of the others, in one figure (atomic); ``None`` where the file has no ``p_fc``."""
+    import numpy as np
+
+    from . import plotting, storage
+
+    src = storage.ResultFile(file)
+    if "p_fc" not in src.fields:
+        return None
+    parts = list(src.iter_chunks(("quality", "force_closure", "p_fc")))
+    q, fc, p = (np.concatenate([c[k] for c in parts]) for k in ("quality", "force_closure", "p_fc"))
+    fc = fc.astype(bool)
+    meta = storage.read_metadata(file)
+    shown = np.arange(len(q))
+    if len(q) > ROBUST_SCATTER:
+        shown = np.sort(np.random.default_rng(0).choice(len(q), ROBUST_SCATTER, replace=False))
+    plt = plotting._pyplot()  # noqa: SLF001
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=100)
+    try:
+        a.scatter(q[shown], p[shown], s=4, alpha=0.35, c=np.where(fc[shown], "tab:blue", "tab:gray"), linewidths=0)
+        a.set_xlabel("nominal Q")
+        a.set_ylabel("P(force-closure) under noise")
+        a.set_ylim(-0.03, 1.03)
+        a.set_title(f"{len(shown):,} of {len(q):,} grasps (blue: nominally force-closure)", fontsize=9)
+        bins = np.linspace(0, 1, 21)
+        b.hist([p[fc], p[~fc]], bins=bins, label=[f"force-closure ({fc.sum():,})", f"not ({(~fc).sum():,})"],
+               color=["tab:blue", "tab:gray"], stacked=True)
+        b.set_xlabel("P(force-closure) under noise")
+        b.set_ylabel("grasps")
+        b.legend(fontsize=8)
+        robust = meta.get("robust", {})
+        noise = robust.get("noise", {})
+        noise = (", ".join(f"{k} {v}" for k, v in noise.items() if v and v != [1.0, 1.0]) or "none"
+                 if isinstance(noise, dict) else str(noise))
+        fig.suptitle(f"{file.name}: robust labels, {robust.get('samples', '?')} perturbations ({noise})",
+                     fontsize=10)
+        fig.tight_layout()
+        _save_figure(fig, path)
+    finally:
+        plt.close(fig)
+    return path
 
 
 #: Most random grasps drawn beside the optimization curves of ``optimize --plot``.

@@ -38,6 +38,9 @@ def test_sample_and_score_write_robust_columns(env, tmp_path):  # noqa: F811
     for name in ROBUST + ("force_closure", "quality"):
         np.testing.assert_array_equal(b[name], a[name], err_msg=name)
     assert meta_b["robust"] == meta["robust"]
+    # show draws nominal Q against P(force-closure) beside the best grasps
+    out = grasp_jax("show", "r.parquet", "--plot", "best.png", "--top", "2", env=env, cwd=tmp_path)
+    assert "best.robust.png" in out.stdout and (tmp_path / "best.robust.png").stat().st_size > 10_000
 
 
 def test_score_without_an_object_for_moving_noise(env, tmp_path):  # noqa: F811
