@@ -885,6 +885,7 @@ def _cmd_dataset(args) -> int:
     )
     for name, reason in summary.failed.items():
         _warn(f"{name}: failed: {reason}")
+    figure = dataset.plot_summary(summary.out)
     if args.json:
         from .summary import summary_json
 
@@ -893,6 +894,8 @@ def _cmd_dataset(args) -> int:
                             "objects": summary.rows}), flush=True)
     elif not args.quiet:
         print(summary.format(), flush=True)
+        if figure is not None:
+            print(f"figure         {figure} (every object done so far, all shards)", flush=True)
     return 0
 
 

@@ -50,6 +50,7 @@ MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae", ".3mf"
 MANIFEST = "_manifest.json"  # "_": readers of the Parquet dataset skip it (as Spark's _SUCCESS)
 RECORDS = "_objects"
 PART = "part.parquet"
+FIGURE = "_summary.png"  # "_": beside the parts, skipped by the dataset's readers
 #: Settings that must match for a run to add to an existing dataset.
 CONFIG_KEYS = ("fingers", "num", "seed", "scheme", "mu", "edges", "torque_test", "contact", "torsion", "robust")
 
@@ -464,6 +465,45 @@ def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -
                       p_fc_mean_nominal_fc=_finite(result.robust["p_fc_mean_nominal_fc"]),
                       q_mean_mean=_finite(result.robust["q_mean_mean"]))
     return record
+
+
+def plot_summary(out, path=None) -> Path | None:
+    """A figure of every object done in the dataset at ``out`` (all shards' records): its
+    force-closure rate, median Q of its force-closure grasps and, with robust labels, mean
+    P(force-closure), one row per object. Written atomically to ``path`` (default
+    ``out/_summary.png``); ``None`` where no object is done yet."""
+    from . import plotting, storage
+
+    out = Path(out)
+    rows = {k: r for k, r in sorted(_records(out).items()) if r.get("status") == "done"}
+    if not rows:
+        return None
+    path = Path(path) if path is not None else out / FIGURE
+    names = list(rows)
+    panels = [("force-closure %", [100 * rows[k]["force_closure_rate"] for k in names]),
+              ("median Q (force-closure grasps)", [rows[k].get("quality_p50") or 0.0 for k in names])]
+    if any(rows[k].get("p_fc_mean") is not None for k in names):
+        panels.append(("mean P(force-closure) under noise", [rows[k].get("p_fc_mean") or 0.0 for k in names]))
+    plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 2.0, 0.28 * len(names) + 1.4),
+                             sharey=True, dpi=100)
+    try:
+        y = np.arange(len(names))
+        for ax, (label, values) in zip(np.atleast_1d(axes), panels):
+            ax.barh(y, values, color="tab:blue")
+            ax.set_xlabel(label, fontsize=9)
+            ax.grid(axis="x", alpha=0.3)
+        first = np.atleast_1d(axes)[0]
+        first.set_yticks(y, [n[:32] for n in names], fontsize=8)
+        first.invert_yaxis()
+        total = sum(rows[k]["num"] for k in names)
+        fig.suptitle(f"{out.name}: {len(names)} objects, {total:,} grasps", fontsize=10)
+        fig.tight_layout()
+        storage.write_atomically(path, lambda fh: fig.savefig(fh, format="png", dpi=fig.dpi, bbox_inches="tight"),
+                                 mode="wb", what="figure")
+    finally:
+        plt.close(fig)
+    return path
 
 
 def _finite(x) -> float | None:

@@ -138,7 +138,8 @@ def test_killed_and_resumed_from_the_command_line(whole, meshes, env, tmp_path):
     out = grasp_jax(*args[:-1], "--json", env=env, cwd=tmp_path)
     summary = json.loads(out.stdout)
     assert len(summary["skipped"]) == done_before and len(summary["done"]) == 3 - done_before
-    rows, ref = _rows(tmp_path / "ds"), whole[1]
+    rows, ref = _rows(tmp_path / "ds"), whole[1]  # (_rows reads the folder with pyarrow: the figure is skipped)
+    assert (tmp_path / "ds" / dataset.FIGURE).stat().st_size > 5_000  # every object: rates, Q, P(FC)
     for name in ref:  # another process, one device: the same rows (Q within the LP's tolerance)
         if ref[name].dtype.kind == "f":
             np.testing.assert_allclose(rows[name], ref[name], rtol=1e-7, atol=1e-10, err_msg=name)
