@@ -178,11 +178,12 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
         f_lo, bad_lo, frictionless, known_lo = jnp.asarray(-thr, dt), jnp.asarray(False), jnp.asarray(False), False
     found = spans & (f_hi > 0) & ~frictionless
     # (step, lo, hi, f_lo, f_hi, slope at lo, slope at hi, f_lo known, |f| of the last point, steps
-    # without progress, side kept by the last steps (Illinois), LP failure)
+    # without progress, side kept by the last steps (Illinois), the last point whose LP failed and
+    # became the lower end, -1 if none)
     state = (
         jnp.zeros((), jnp.int32), zero, jnp.asarray(cap, dt), jnp.minimum(f_lo, 0.0), f_hi, zero, d_hi,
         jnp.asarray(known_lo), jnp.abs(f_hi), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32),
-        jnp.asarray(bad_hi | bad_lo),
+        jnp.where(bad_lo, zero, -jnp.ones((), dt)),
     )
 
     def _closed(lo, hi):
@@ -191,11 +192,11 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
         return (hi - lo <= rtol * hi) | (hi <= atol)
 
     def cond(s):
-        k, lo, hi, *_, bad = s
-        return found & ~bad & (k < steps) & ~_closed(lo, hi)
+        k, lo, hi, *_ = s
+        return found & (k < steps) & ~_closed(lo, hi)
 
     def body(s):
-        k, lo, hi, flo, fhi, dlo, dhi, known, f_last, stall, side, bad = s
+        k, lo, hi, flo, fhi, dlo, dhi, known, f_last, stall, side, failed = s
         width = hi - lo
         inside = lambda x: (x > lo) & (x < hi) & jnp.isfinite(x)  # noqa: E731
         newton_hi = hi - fhi / jnp.where(dhi > 0, dhi, 1.0)
@@ -215,7 +216,10 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
         gap = 0.5 * rtol * hi
         x = jnp.clip(x, lo + gap, hi - gap)
         fx, dx, bad_x = value_and_slope(x)
-        holds = fx > 0
+        # An LP that did not converge (near the friction at which the LP turns infeasible, say)
+        # proves nothing: x is not taken as force-closure, and becomes a lower end on credit
+        # (``failed``); mu* = hi stays a friction at which a converged LP says force-closure.
+        holds = (fx > 0) & ~bad_x
         # Illinois: an end kept twice in a row has its value halved (the secant then moves it).
         hi_kept, lo_kept = ~holds & (side < 0), holds & (side > 0)
         lo2, flo2, dlo2 = (jnp.where(holds, lo, x), jnp.where(holds, jnp.where(lo_kept, 0.5 * flo, flo), fx),
@@ -225,10 +229,12 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
         side2 = jnp.where(holds, jnp.minimum(side, 0) - 1, jnp.maximum(side, 0) + 1)
         progress = (hi2 - lo2 <= 0.5 * width) | (jnp.abs(fx) <= 0.5 * f_last)
         stall2 = jnp.where(progress, 0, stall + 1)
-        return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, jnp.abs(fx), stall2, side2, bad | bad_x)
+        failed2 = jnp.where(~holds & bad_x, x, failed)
+        return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, jnp.abs(fx), stall2, side2, failed2)
 
-    k, lo, hi, _, f_hi, _, d_hi, *_, bad = jax.lax.while_loop(cond, body, state)
-    converged = _closed(lo, hi) & ~bad
+    k, lo, hi, _, f_hi, _, d_hi, *_, failed = jax.lax.while_loop(cond, body, state)
+    # a lower end that only an LP failure put there: mu* = hi is an upper bound
+    converged = _closed(lo, hi) & (failed < lo)
     # l* = thr + f_hi at hi: the root of l* = 0 one Newton step back, where that step is short (the
     # slope is not ~0 there); the grasp holds for every mu above it.
     back = (f_hi + thr) / jnp.where(d_hi > 0, d_hi, 1.0)
