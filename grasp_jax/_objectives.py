@@ -114,14 +114,15 @@ def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="h
 
 
 def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None,
-                      best_effort: bool = False, contact="hard", torsion=0.0) -> jax.Array:
+                      best_effort: bool = False, contact="hard", torsion=0.0, full=None) -> jax.Array:
     """``K l*`` of the min-weight LP on all ``K`` primitive wrenches, torques about ``center`` over
-    ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible."""
+    ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible.
+    ``full``: as :func:`grasp_jax._closure.min_weight_value` (``True`` skips the rank test)."""
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges)
     # Points in units of scale: torsion moments (a length times a force) are divided by it too.
     w = wrench_columns((points - center) / scale, normals, edges, contact, torsion / scale).wrenches
-    margin, status = min_weight_value(w, iterations, best_effort)
+    margin, status = min_weight_value(w, iterations, best_effort, full=full)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, w.shape[0] * margin)
 
 
@@ -198,8 +199,11 @@ def friction_objective(points, normals, num_edges, center, scale, iterations=Non
     points = jnp.asarray(points)
     cap = jnp.asarray(FRICTION_CAP, points.dtype)
     mu_star, status = critical_friction_one(points, normals, cap, num_edges, contact, torsion)
+    # No rank test here (full=True): the search has made its own, and a second eigendecomposition
+    # in the program could deadlock XLA's CPU thread pool (``_friction._spans``); only l* <= 0 is
+    # used, and a rank-deficient set is not force-closure either way.
     margin = min_weight_margin(points, normals, cap, num_edges, center, scale, iterations, best_effort, contact,
-                               torsion)
+                               torsion, full=True)
     found = status != FrictionStatus.ABOVE_CAP
     return jnp.where(found, -jnp.where(found, mu_star, 0.0), -cap + jnp.minimum(margin, 0.0))
 
