@@ -42,7 +42,7 @@ from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
-from ._validate import check_int, check_num_edges, check_scalar
+from ._validate import check_int, check_key, check_num_edges, check_scalar
 
 #: Default peak learning rates of Adam, in object radii per step: from random starts (the smallest
 #: of 0.02..0.8 with >= 99.5% of 256 random 4-finger starts on the glass force-closure after 100
@@ -444,7 +444,7 @@ def optimize(
     init_points = None if init is None else _check_init(init, fingers, surface.dim)
     if init_points is None:
         starts = check_int("starts", starts)
-        key = _check_key(key)
+        key = check_key(key, "gj.optimize")
     else:
         starts = len(init_points)
     scope = float64_scope() if dtype == np.float64 else contextlib.nullcontext()
@@ -462,7 +462,7 @@ def optimize(
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
         robust = None
         if noise is not None:
-            draw_key = jax.random.fold_in(key if init_points is None else _check_key(key), 24)
+            draw_key = jax.random.fold_in(key if init_points is None else check_key(key, "gj.optimize"), 24)
             robust = (_robust.reparameterized(noise, draw_key, robust_samples, fingers, surface.dim,
                                               float(surface.scale), dtype), noise._flags())
         result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
@@ -574,17 +574,6 @@ def _check_optimizer(optimizer: optax.GradientTransformation, shape: tuple) -> N
         raise TypeError(f"the optimizer's update(updates, state, params) failed ({e}); gj.optimize gives an "
                         "optimizer its updates and params only, no value, grad or value_fn: a line search such as "
                         "optax.lbfgs()'s cannot run here (optax.scale_by_lbfgs() without one can)") from None
-
-
-def _check_key(key):
-    if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
-        if key < 0:
-            raise ValueError(f"key must be a jax.random key or a non-negative integer seed; got {key!r}")
-        return jax.random.key(int(key))
-    if isinstance(key, jax.Array) and (jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-                                       or (key.dtype == jnp.uint32 and key.shape == (2,))):
-        return key
-    raise ValueError(f"key must be a jax.random key or a non-negative integer seed; got {type(key).__name__}")
 
 
 def _check_init(init, fingers: int, d: int) -> np.ndarray:

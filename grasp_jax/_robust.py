@@ -48,7 +48,7 @@ from ._batch import Retry, map_grasps, pad_rows
 from ._cones import safe_normalize, tangent_frame
 from ._constants import DEFAULT_NUM_EDGES
 from ._lp import Status
-from ._validate import check_int, check_scalar, is_traced
+from ._validate import check_int, check_key, check_scalar, is_traced
 
 #: Perturbed grasps (grasps x samples) scored per slice: memory is set by this, not by the batch.
 ROWS = 65536
@@ -409,27 +409,6 @@ def _stats(values: np.ndarray, quantile: float) -> tuple[np.ndarray, np.ndarray,
     return mean, se, low
 
 
-def _check_key(key):
-    if is_traced(key):
-        raise ValueError("key must be a concrete jax.random.key (robust and perturb run outside jit)")
-    if isinstance(key, (int, np.integer)) and not isinstance(key, bool):  # a seed, as gj.optimize takes
-        if key < 0:
-            raise ValueError(f"key must be a jax.random.key or a non-negative integer seed; got {key!r}")
-        return jax.random.key(int(key))
-    try:
-        key = jnp.asarray(key)
-        if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-            if key.shape != (2,) or key.dtype != jnp.uint32:
-                raise TypeError
-            key = jax.random.wrap_key_data(key)
-    except TypeError:
-        raise ValueError(f"key must be a jax.random.key(seed), a legacy PRNGKey or a non-negative integer seed; "
-                         f"got {key!r}") from None
-    if key.shape != ():
-        raise ValueError(f"key must be one key; got a batch of shape {key.shape}")
-    return key
-
-
 class _Perturber:
     """The perturbations of one call: validated grasps, the surface, the draws; called on a slice
     of grasps, gives their perturbed copies (NumPy)."""
@@ -439,7 +418,7 @@ class _Perturber:
         if not isinstance(noise, Noise):
             raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
         self.samples = check_int("samples", samples, 1)
-        key = _check_key(key)
+        key = check_key(key, "robust and perturb")
         points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None, torsion)
         if is_traced(points, normals, mu):
             raise ValueError("robust and perturb run on concrete arrays (outside jit, grad and vmap)")

@@ -116,3 +116,29 @@ def check_grasps(points, normals, tangents=None):
                 )
     tangents = None if tangents is None else tangents.astype(dtype)
     return points.astype(dtype), normals.astype(dtype), tangents, points.shape[:-2]
+
+
+def check_key(key, what: str = "this function"):
+    """One ``jax.random`` key from a typed key, a legacy ``uint32[2]`` PRNGKey or a non-negative
+    integer seed (``jax.random.key(seed)``); a clear ``ValueError`` for anything else (a traced
+    key: ``what`` runs outside ``jit``)."""
+    import jax.numpy as jnp
+
+    if is_traced(key):
+        raise ValueError(f"key must be a concrete jax.random.key ({what} runs outside jit)")
+    if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
+        if key < 0:
+            raise ValueError(f"key must be a jax.random key or a non-negative integer seed; got {key!r}")
+        return jax.random.key(int(key))
+    try:
+        key = jnp.asarray(key)
+        if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+            if key.shape != (2,) or key.dtype != jnp.uint32:
+                raise TypeError
+            key = jax.random.wrap_key_data(key)
+    except TypeError:
+        raise ValueError(f"key must be a jax.random key (or a legacy PRNGKey) or a non-negative integer seed; "
+                         f"got {key!r}") from None
+    if key.shape != ():
+        raise ValueError(f"key must be one key; got a batch of shape {key.shape}")
+    return key
