@@ -254,7 +254,7 @@ def close_jaws(hits: LineHits, offset: np.ndarray, widths: np.ndarray, min_width
     has1 = below1 > 0  # a hit ahead of jaw 1
     first = np.where(has0, hits.start + below0, -1)
     last = np.where(has1, hits.start + below1 - 1, -1)
-    n = max(len(hits.s), 1)
+    n = len(hits.s)  # the sentinel appended below
     exits = np.concatenate([hits.exits, [False]])
     s = np.concatenate([hits.s, [0.0]])
     inside0 = has0 & exits[np.where(has0, first, n)]  # the first surface jaw 0 meets is an exit
