@@ -254,6 +254,17 @@ def _perturb(surface, contacts, points, normals, draw, sigmas, mu, *, flags):
     return jax.vmap(over_samples, in_axes=(0, 0, 0, None, None, None))(contacts, points, normals, draw, sigmas, mu)
 
 
+@functools.partial(jax.jit, static_argnames=("flags",))
+def _perturb_moved(points, normals, draw, sigmas, mu, *, flags):
+    """The normal tilt and friction of :func:`_perturb_one` (``flags``' last two) on contacts that
+    already moved, one set per sample (parallel-jaw contacts cast again under noise:
+    :func:`grasp_jax.grippers.robust_jaws`): ``(g, S, n, d)`` points and normals, sample ``s``
+    with draw ``s``; returns as :func:`_perturb` (points unchanged)."""
+    one = functools.partial(_perturb_one, None, None, flags=(False, False) + tuple(flags[2:]))
+    over_samples = jax.vmap(one, in_axes=(0, 0, 0, None, None))
+    return jax.vmap(over_samples, in_axes=(0, 0, None, None, None))(points, normals, draw, sigmas, mu)
+
+
 # ---------------------------------------------------------------------------------------------
 # A differentiable robust objective for the optimizer (objective="robust" of gj.optimize).
 
@@ -444,6 +455,21 @@ class _Perturber:
         self.sigmas = np.array([noise.position * self.scale, noise.normal, noise.friction[0], noise.friction[1],
                                 noise.friction_sigma, noise.rotation, noise.translation * self.scale], self.dtype)
 
+    def start(self) -> None:
+        """Put the surface on the device, inside ``self.scope`` (before the first slice)."""
+        if self.surface is not None:
+            self.surface = jax.device_put(self.surface)
+
+    @property
+    def center(self):
+        """The origin of the min-weight margin's torques: the object's centre (else 0)."""
+        return np.zeros(self.points.shape[-1]) if self.surface is None else self.surface.center
+
+    def slice(self, start: int, stop: int):
+        """What :func:`_label` scores: ``(points, normals, mu, ok)``, ``ok`` ``None`` (free
+        contacts always touch the object)."""
+        return (*self(start, stop), None)
+
     def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasps ``start..stop`` (of the flattened batch) perturbed: ``(g, S, n, d)`` points and
         normals, ``(g, S, n)`` friction coefficients. Call inside ``self.scope``."""
@@ -484,8 +510,7 @@ def perturb(obj, points, normals, *, mu, noise: Noise, key, samples: int = 100, 
     """
     perturber = _Perturber(obj, points, normals, mu, noise, key, samples, normal_kind=surface_normals)
     with perturber.scope:
-        if perturber.surface is not None:
-            perturber.surface = jax.device_put(perturber.surface)
+        perturber.start()
         p, n, m = perturber(0, perturber.total)
     lead = perturber.batch + (perturber.samples,)
     return p.reshape(lead + p.shape[2:]), n.reshape(lead + n.shape[2:]), m.reshape(lead + m.shape[2:])
@@ -550,16 +575,50 @@ def robust(
         ValueError: bad shapes or values, a negative sigma (:class:`Noise`), or noise that moves
             contacts without an object.
     """
+    samples, quantile = check_labels(samples, quantile, torque_test)
+    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion, surface_normals)
+    contact, torsion = check_contact(contact, torsion, perturber.points.shape[-1])
+    torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
+    result, stuck = _label(perturber, quantile=quantile, torque_test=torque_test, contact=contact, torsion=torsion,
+                           margin=margin, torque_scale=torque_scale, progress=progress)
+    warn_unconverged(result, stuck, "robust")
+    return result
+
+
+def check_labels(samples, quantile, torque_test) -> tuple[int, float]:
+    """``(samples, quantile)`` of :func:`robust` validated (and ``torque_test``)."""
     samples = check_int("samples", samples, 2, " (a standard error needs two samples)")
     quantile = check_scalar("quantile", quantile, positive=False, minimum=0.0)
     if quantile > 1:
         raise ValueError(f"quantile must be in [0, 1]; got {quantile!r}")
     if torque_test not in ("exact", "paper"):
         raise ValueError(f"torque_test must be 'exact' or 'paper'; got {torque_test!r}")
-    perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion, surface_normals)
-    dtype, total, d = perturber.dtype, perturber.total, perturber.points.shape[-1]
-    contact, torsion = check_contact(contact, torsion, d)
-    torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
+    return samples, quantile
+
+
+def warn_unconverged(result: RobustResult, stuck: int, what: str) -> None:
+    """The warning of :func:`robust` where perturbed grasps did not converge (in the caller's caller)."""
+    bad = int(np.sum(result.unconverged))
+    if bad or stuck:
+        total = int(np.size(result.p_fc)) * result.samples
+        warnings.warn(f"{what}: {bad} evaluations and {stuck} min-weight LPs of {total:,} perturbed grasps "
+                      "did not converge in the iteration budget; they count as not force-closure with Q 0 "
+                      "(margin 0); see RobustResult.unconverged", RuntimeWarning, stacklevel=3)
+
+
+def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_scale, progress):
+    """Score the perturbations of ``perturber`` and reduce them to a :class:`RobustResult`: the one
+    scoring path of :func:`robust` and :func:`grasp_jax.grippers.robust_jaws`.
+
+    ``perturber`` has ``total`` grasps (leading shape ``batch``), ``samples``, ``per`` grasps per
+    slice, ``dtype``, ``num_edges``, ``points`` (the nominal grasps, for the LP budgets),
+    ``scope`` (the precision context), ``start()`` (called inside it), ``center`` (the margin's
+    origin) and ``slice(start, stop) -> (points, normals, mu, ok)``: ``(g, S, n, d)``,
+    ``(g, S, n, d)``, ``(g, S, n)`` and ``(g, S) bool`` or ``None``; a perturbation whose ``ok``
+    is ``False`` (no grasp at all: jaws that miss) counts as not force-closure, Q 0, margin 0, and
+    not as unconverged. Returns ``(result, min-weight LPs not converged)``.
+    """
+    dtype, total, samples = perturber.dtype, perturber.total, perturber.samples
     num_edges = perturber.num_edges
     evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
     weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
@@ -573,29 +632,30 @@ def robust(
         starts = tqdm(starts, unit="slice", desc=f"robust: {total:,} grasps x {samples}")
     stuck = 0  # min-weight LPs that did not converge
     with perturber.scope:
-        surface = perturber.surface
-        if surface is not None:
-            surface = perturber.surface = jax.device_put(surface)
+        perturber.start()
         t = jnp.asarray(torsion, dtype)
         shared = (t, *budget)
         retries = tuple(Retry((t, *pass_), _unfinished) for pass_ in retry)
-        center = np.zeros(d) if surface is None else surface.center
-        weight_shared = (t, jnp.asarray(center, dtype), jnp.asarray(torque_scale, dtype))
+        weight_shared = (t, jnp.asarray(perturber.center, dtype), jnp.asarray(torque_scale, dtype))
         for start in starts:
             stop = min(start + per, total)
             g = stop - start
-            pp, nn, mm = perturber(start, stop)
+            pp, nn, mm, ok = perturber.slice(start, stop)
             res = map_grasps(evaluate_fn, (pp, nn, None, mm), shared, (g, samples), retry=retries)
-            fc = np.asarray(res.force_closure)
+            fc, q, conv = np.asarray(res.force_closure), np.asarray(res.quality), np.asarray(res.converged)
+            if ok is not None:
+                fc, q, conv = fc & ok, np.where(ok, q, q.dtype.type(0)), conv | ~ok
             fields["p_fc"].append(fc.mean(axis=1))
-            fields["unconverged"].append((~np.asarray(res.converged)).sum(axis=1).astype(np.int32))
-            for name, value in zip(("q_mean", "q_mean_se", "q_low"), _stats(np.asarray(res.quality), quantile)):
+            fields["unconverged"].append((~conv).sum(axis=1).astype(np.int32))
+            for name, value in zip(("q_mean", "q_mean_se", "q_low"), _stats(q, quantile)):
                 fields[name].append(value)
             if margin:
                 l_star, status = map_grasps(weight_fn, (pp, nn, None, mm), weight_shared, (g, samples))
-                stuck += int(np.sum(np.asarray(status) == Status.NOT_CONVERGED))
-                for name, value in zip(("margin_mean", "margin_mean_se", "margin_low"),
-                                       _stats(np.maximum(np.asarray(l_star), 0.0), quantile)):
+                l_star, open_ = np.maximum(np.asarray(l_star), 0.0), np.asarray(status) == Status.NOT_CONVERGED
+                if ok is not None:
+                    l_star, open_ = np.where(ok, l_star, l_star.dtype.type(0)), open_ & ok
+                stuck += int(np.sum(open_))
+                for name, value in zip(("margin_mean", "margin_mean_se", "margin_low"), _stats(l_star, quantile)):
                     fields[name].append(value)
     out = {}
     for name in RobustResult.COLUMNS:
@@ -608,10 +668,4 @@ def robust(
         out[name] = value.reshape(perturber.batch)
     p = out["p_fc"]
     out["p_fc_se"] = np.sqrt(p * (1.0 - p) / samples)
-    result = RobustResult(**out, samples=samples, quantile=quantile)
-    bad = int(np.sum(result.unconverged))
-    if bad or stuck:
-        warnings.warn(f"robust: {bad} evaluations and {stuck} min-weight LPs of {total * samples:,} perturbed grasps "
-                      "did not converge in the iteration budget; they count as not force-closure with Q 0 "
-                      "(margin 0); see RobustResult.unconverged", RuntimeWarning, stacklevel=2)
-    return result
+    return RobustResult(**out, samples=samples, quantile=quantile), stuck
