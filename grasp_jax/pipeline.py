@@ -63,7 +63,9 @@ EPSILON_ZERO = 1e-9
 class RobustLabels:
     """Robust labels written beside the nominal scores (``grasp-jax sample / score --robust N``):
     :func:`grasp_jax.robust` of every chunk, with the same draws for every chunk (one key), so the
-    labels do not depend on the chunk size.
+    labels do not depend on the chunk size. Parallel-jaw grasps (chunks with jaw poses) under noise
+    that moves contacts are labelled by :func:`grasp_jax.grippers.robust_jaws` instead: the closing
+    line cast again at every perturbed pose (the metadata's ``robust`` says ``"jaws": "recast"``).
 
     Attributes:
         noise: a :class:`grasp_jax.Noise`.
@@ -107,6 +109,39 @@ class RobustLabels:
                             samples=self.samples, quantile=self.quantile, num_edges=num_edges,
                             torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
         return {self.COLUMNS[f]: v for f, v in res.columns().items()}
+
+    def jaw_columns(self, chunk: Mapping, *, gripper, collision: bool, mu, num_edges, torque_test, contact,
+                    torsion) -> dict:
+        """``{column: (N,) array}`` of the parallel-jaw grasps of ``chunk`` (``center``, ``axis``,
+        ``width``[, ``approach``]) by :func:`grasp_jax.grippers.robust_jaws` on ``obj``'s mesh."""
+        import jax
+
+        from .grippers import robust_jaws
+
+        approaches = chunk.get("approach") if collision else None
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
+            res = robust_jaws(self.obj, chunk["center"], chunk["axis"], chunk["width"], approaches, mu=mu,
+                              noise=self.noise, key=jax.random.key(self.seed), samples=self.samples,
+                              gripper=gripper, collision=collision, quantile=self.quantile, num_edges=num_edges,
+                              torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
+        return {self.COLUMNS[f]: v for f, v in res.columns().items()}
+
+
+def _recast_jaws(robust: RobustLabels | None, extra_fields: tuple, metadata: Mapping):
+    """``(gripper, collision)`` where the robust labels of a stream re-cast its parallel-jaw
+    grasps (jaw poses in the chunks, noise that moves contacts), else ``None``."""
+    if robust is None or not robust.noise.moves_contacts:
+        return None
+    if not {"center", "axis", "width", "jaw_status"} <= set(extra_fields):
+        return None
+    from .grippers import ParallelJaw
+
+    gripper = metadata.get("gripper")
+    gripper = ParallelJaw.from_dict(gripper) if isinstance(gripper, Mapping) else None
+    collision = bool(metadata.get("collision")) and gripper is not None and gripper.has_body \
+        and "approach" in extra_fields
+    return gripper, collision
 
 
 # ---------------------------------------------------------------------------------------------
@@ -207,8 +242,12 @@ def score_stream(
     (the jaw poses of :mod:`grasp_jax.grippers`); where the chunks have ``jaw_status``, grasps
     whose status is not ``OK`` are not force-closure, Q 0 (critical friction ``inf``).
     ``critical``: also the critical friction of each grasp (:func:`grasp_jax.critical_friction`,
-    columns :data:`CRITICAL_FIELDS`). ``robust``: also write robust labels (:class:`RobustLabels`;
-    for jaws, their contacts perturbed as free contacts, failed jaws P(force-closure) 0).
+    columns :data:`CRITICAL_FIELDS`). ``robust``: also write robust labels (:class:`RobustLabels`).
+    Parallel-jaw grasps under noise that moves contacts are re-cast at every perturbed pose
+    (:func:`grasp_jax.grippers.robust_jaws`, with the gripper and collision setting of
+    ``metadata``; a perturbation whose jaws fail counts as not force-closure); under normal and
+    friction noise alone their contacts do not move and are perturbed as free contacts, failed jaws
+    P(force-closure) 0.
     """
     import jax
 
@@ -227,8 +266,11 @@ def score_stream(
             raise ValueError(f"robust labels under {robust.noise} move contacts over the object: give the object")
         fields += list(robust.fields())
     meta = dict(metadata)
+    recast = _recast_jaws(robust, tuple(extra_fields), metadata)
     if robust is not None:
         meta["robust"] = robust.to_dict()
+        if recast is not None:
+            meta["robust"]["jaws"] = "recast"
     if epsilon:
         meta["epsilon_origin"] = _jsonable(origin) if origin is not None else [0.0] * dim
         meta["epsilon_torque_scale"] = float(torque_scale)
@@ -296,8 +338,13 @@ def score_stream(
                 bar.update(rows)
             if robust is not None:
                 t_robust = time.perf_counter()
-                batch.update(robust.columns(points, normals, mu=mu, num_edges=num_edges, torque_test=torque_test,
-                                            contact=contact, torsion=torsion))
+                if recast is not None:  # parallel-jaw grasps: the closing lines cast again under noise
+                    batch.update(robust.jaw_columns(chunk, gripper=recast[0], collision=recast[1], mu=mu,
+                                                    num_edges=num_edges, torque_test=torque_test, contact=contact,
+                                                    torsion=torsion))
+                else:
+                    batch.update(robust.columns(points, normals, mu=mu, num_edges=num_edges,
+                                                torque_test=torque_test, contact=contact, torsion=torsion))
                 rob["seconds"] += time.perf_counter() - t_robust
             if "force_closure" in chunk:
                 have_ref = True
@@ -305,7 +352,7 @@ def score_stream(
             if extra_fields:  # parallel-jaw poses: written as they come; failed jaws never hold
                 batch.update({name: chunk[name] for name in extra_fields})
                 if "jaw_status" in chunk:
-                    _mask_failed_jaws(batch, chunk["jaw_status"])
+                    _mask_failed_jaws(batch, chunk["jaw_status"], robust=recast is None)
                     fc, q = batch["force_closure"], batch["quality"]
             if critical:
                 batch["friction_label"] = gj.friction_label(batch["critical_mu"])
@@ -381,16 +428,18 @@ def _robust_summary(robust: RobustLabels, counts: dict, rob: dict) -> dict:
     }
 
 
-def _mask_failed_jaws(batch: dict, jaw_status) -> None:
+def _mask_failed_jaws(batch: dict, jaw_status, robust: bool = True) -> None:
     """Grasps whose jaw status is not ``OK``: not force-closure, Q 0, critical friction ``inf``
-    (``grasp_jax.grippers.score_grasps``'s rule), in place."""
+    (``grasp_jax.grippers.score_grasps``'s rule), in place; ``robust``: their robust labels 0 too
+    (their fill contacts perturbed as free contacts mean nothing; re-cast jaws keep their labels:
+    a perturbed pose may close where the nominal one does not)."""
     from .grippers._score import mask_failed
 
     fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
                                 batch.get("critical_status"))
     batch.update(force_closure=fc, quality=q)
     failed = np.asarray(jaw_status) != 0
-    for name in RobustLabels.COLUMNS.values():
+    for name in RobustLabels.COLUMNS.values() if robust else ():
         if name in batch and name != "robust_unconverged":
             batch[name] = np.where(failed, 0.0, batch[name])
     if mu is not None:
