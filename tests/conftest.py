@@ -25,6 +25,7 @@ compiled. Two caches share the folder:
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 #: The suite's compilation cache (see the docstring), before JAX is imported.
@@ -136,3 +137,14 @@ def xla_cache(tmp_path_factory) -> str:
 def rng() -> np.random.Generator:
     """A seeded generator, fresh for every test."""
     return np.random.default_rng(20240611)
+
+
+@pytest.fixture
+def in_process(monkeypatch, tmp_path):
+    """``grasp-jax`` run in this process (its SIGTERM handler undone afterwards)."""
+    from grasp_jax import cli
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.chdir(tmp_path)
+    yield cli.main
+    signal.signal(signal.SIGTERM, before)

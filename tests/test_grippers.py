@@ -4,7 +4,6 @@ closing-line condition, the command line and held-out YCB meshes."""
 
 from __future__ import annotations
 
-import signal
 
 import numpy as np
 import pytest
@@ -277,17 +276,6 @@ def test_the_page_draws_the_jaws():
 
 # -------------------------------------------------------------------------------------------------
 # The command line
-
-
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """``grasp-jax`` run in this process (its SIGTERM handler undone afterwards)."""
-    from grasp_jax import cli
-
-    before = signal.getsignal(signal.SIGTERM)
-    monkeypatch.chdir(tmp_path)
-    yield cli.main
-    signal.signal(signal.SIGTERM, before)
 
 
 def test_cli_sample_parallel_jaw_writes_the_columns(in_process, tmp_path, capsys):

@@ -9,7 +9,6 @@ Every grasp has two soft contacts and 8 cone edges: one compiled program of each
 
 from __future__ import annotations
 
-import signal
 
 import jax
 import numpy as np
@@ -202,17 +201,6 @@ def test_bad_input_raises_one_clear_error(sphere_grasps):
         grippers.robust_jaws(SPHERE, centers, axes, widths, noise=noise, mu=MU, key=-1, **SOFT)
     with pytest.raises(ValueError, match="axes must have shape"):
         grippers.robust_jaws(SPHERE, centers, axes[:, :2], widths, noise=noise, **call)
-
-
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """``grasp-jax`` run in this process (its SIGTERM handler undone afterwards)."""
-    from grasp_jax import cli
-
-    before = signal.getsignal(signal.SIGTERM)
-    monkeypatch.chdir(tmp_path)
-    yield cli.main
-    signal.signal(signal.SIGTERM, before)
 
 
 def test_cli_writes_recast_robust_columns(in_process, tmp_path, capsys):
