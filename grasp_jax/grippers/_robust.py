@@ -49,11 +49,9 @@ def _center_radius(mesh, tm) -> tuple[np.ndarray, float]:
     center, radius = getattr(mesh, "center", None), getattr(mesh, "radius", None)
     if center is not None and radius is not None and not hasattr(mesh, "faces"):
         return np.asarray(center, float).reshape(3), float(radius)
-    if tm.is_volume:
-        center = np.asarray(tm.center_mass, float)
-    else:
-        center = (tm.area_faces[:, None] * tm.triangles_center).sum(0) / tm.area
-    return center, float(np.linalg.norm(tm.vertices - center, axis=1).max())
+    from ..objects._mesh import center_radius
+
+    return center_radius(tm, tm.is_volume)
 
 
 class _JawPerturber:

@@ -23,6 +23,16 @@ import trimesh
 from ._base import ObjectError, Picker, check_count
 
 
+def center_radius(tm: trimesh.Trimesh, closed: bool) -> tuple[np.ndarray, float]:
+    """An object's centre and radius from its triangles: the centre of mass of a ``closed`` volume,
+    else the area centroid; the largest distance from it to a vertex."""
+    if closed:
+        center = np.asarray(tm.center_mass, dtype=float)
+    else:
+        center = (tm.area_faces[:, None] * tm.triangles_center).sum(0) / tm.area
+    return center, float(np.linalg.norm(tm.vertices - center, axis=1).max())
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh. Build it with :meth:`from_file` or :meth:`from_trimesh`.
@@ -106,11 +116,7 @@ class Mesh:
         counts = np.unique(tm.edges_sorted, axis=0, return_counts=True)[1]
         notes.extend(_reliability(counts, labels))
         closed = (counts >= 2).all() and tm.is_winding_consistent and tm.volume > 0
-        if closed:
-            center = np.asarray(tm.center_mass, dtype=float)
-        else:
-            center = (tm.area_faces[:, None] * tm.triangles_center).sum(0) / tm.area
-        radius = float(np.linalg.norm(tm.vertices - center, axis=1).max())
+        center, radius = center_radius(tm, closed)
         return cls(name=name, mesh=tm, center=center, radius=radius, warnings=tuple(notes))
 
     @functools.cached_property
