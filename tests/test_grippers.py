@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 import grasp_jax as gj
-from grasp_jax import grippers, storage
+from grasp_jax import grippers, objects, storage
 from grasp_jax._cones import cone_edges
 from grasp_jax.grippers import JawStatus, ParallelJaw
 
@@ -82,6 +82,31 @@ def test_box_contacts_are_exact(rng):
     assert (res.status == JawStatus.OK).all()
     np.testing.assert_allclose(res.points, points, atol=1e-12)
     np.testing.assert_allclose(res.normals, normals, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["icosphere", "ycb_025_mug.obj"])
+def test_ray_hits_are_trimeshs(name, request):
+    """``grippers._contacts.ray_hits`` (short pieces of each ray through rtree) finds the hits of
+    trimesh's own ``intersects_location(..., multiple_hits=True)`` on slanted rays: the same
+    locations on the same rays (an edge tie may name the other of two triangles)."""
+    from grasp_jax.grippers._contacts import ray_hits
+
+    if name == "icosphere":
+        tm = trimesh.creation.icosphere(subdivisions=3, radius=0.04)
+    else:
+        tm = objects.load(request.getfixturevalue("mesh_dir") / name).mesh
+    r = np.random.default_rng(4)
+    lo, hi = tm.bounds
+    targets = lo + r.random((500, 3)) * (hi - lo)
+    direction = r.normal(size=(500, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    origins = targets - 2 * np.linalg.norm(hi - lo) * direction
+    ours = ray_hits(tm, origins, direction)
+    theirs = tm.ray.intersects_location(origins, direction, multiple_hits=True)
+    key = lambda loc, ray: np.round(np.column_stack([ray, loc]), 9)  # noqa: E731
+    a, b = key(ours[0], ours[1]), key(np.asarray(theirs[0]), np.asarray(theirs[1]))
+    assert len(a) > 500
+    np.testing.assert_allclose(a[np.lexsort(a.T[::-1])], b[np.lexsort(b.T[::-1])], atol=1e-9)
 
 
 def test_statuses_and_fill_values():
