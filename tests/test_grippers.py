@@ -326,8 +326,6 @@ def test_cli_sample_parallel_jaw_writes_the_columns(in_process, tmp_path, capsys
     np.testing.assert_array_equal(arrays["force_closure"][clear], mu_star[clear] < 0.5)
     np.testing.assert_array_equal(arrays["friction_label"], gj.friction_label(mu_star))
     # the file's poses give its contacts again
-    from grasp_jax import objects
-
     again = grippers.jaw_contacts(objects.load("sphere").mesh, arrays["center"], arrays["axis"], arrays["width"])
     assert (again.status == arrays["jaw_status"]).all()
     np.testing.assert_allclose(again.points, arrays["points"], atol=1e-12)
@@ -361,8 +359,6 @@ def test_cli_failing_run_writes_no_file(in_process, tmp_path, monkeypatch, capsy
 
 @pytest.mark.parametrize("name", ["ycb_006_mustard_bottle", "ycb_025_mug"])
 def test_held_out_ycb(mesh_dir, name):
-    from grasp_jax import objects
-
     path = mesh_dir / f"{name}.obj"
     if not path.is_file():
         pytest.skip(f"{path} not found")
