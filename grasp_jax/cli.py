@@ -493,6 +493,10 @@ def _add_dataset(sub) -> None:
     g.add_argument("--edges", type=_int(3, "an integer >= 3"), default=8, help="edges of each friction cone")
     g.add_argument("--torque-test", choices=("exact", "paper"), default="exact", help="the torque test")
     _add_contact(g)
+    g.add_argument("--critical-friction", action=argparse.BooleanOptionalAction, default=None,
+                   help="also the smallest friction coefficient at which each grasp is force-closure (columns "
+                        "critical_mu, critical_status, friction_label) (default: on with --gripper, else off)")
+    _add_gripper(p)
     _add_robust(p)
     o = p.add_argument_group("performance and output")
     o.add_argument("--chunk", type=_count, default=None, metavar="N", help="grasps per chunk (default 65536 on a CPU)")
@@ -874,14 +878,14 @@ def _cmd_dataset(args) -> int:
     if args.first_contact is not None or args.scheme != "uniform":
         raise ValueError("a dataset samples every object uniformly: leave out --scheme and --first-contact")
     shard = dataset.parse_shard(args.shard) if args.shard is not None else dataset.shard_from_environment()
-    contact, torsion = _contact_settings(args, args.mu)
+    jaw, contact, torsion = _jaw_settings(args)
     robust = _robust_settings(args)
     dataset.list_objects(args.objects)  # an empty folder or a bad manifest: before JAX starts
     _setup(args)
     summary = dataset.build(
         args.objects, args.out, num=args.num, fingers=args.fingers, mu=args.mu, num_edges=args.edges, seed=args.seed,
         torque_test=args.torque_test, contact=contact, torsion=torsion, robust=robust, chunk=args.chunk,
-        shard=shard, progress=not args.quiet,
+        shard=shard, progress=not args.quiet, critical=args.critical_friction, **jaw,
     )
     for name, reason in summary.failed.items():
         _warn(f"{name}: failed: {reason}")

@@ -51,8 +51,10 @@ MANIFEST = "_manifest.json"  # "_": readers of the Parquet dataset skip it (as S
 RECORDS = "_objects"
 PART = "part.parquet"
 FIGURE = "_summary.png"  # "_": beside the parts, skipped by the dataset's readers
-#: Settings that must match for a run to add to an existing dataset.
-CONFIG_KEYS = ("fingers", "num", "seed", "scheme", "mu", "edges", "torque_test", "contact", "torsion", "robust")
+#: Settings that must match for a run to add to an existing dataset (the last three only where set:
+#: a dataset of free contacts written before they existed reads the same).
+CONFIG_KEYS = ("fingers", "num", "seed", "scheme", "mu", "edges", "torque_test", "contact", "torsion", "robust",
+               "gripper", "collision", "critical")
 
 
 class DatasetError(ValueError):
@@ -247,9 +249,9 @@ def _start(out: Path, config: dict) -> None:
         raise DatasetError(f"cannot create the dataset folder {str(out)!r}: {exc.strerror or exc}") from None
     with _locked(out):
         old = _read_json(out / MANIFEST)
-        if old is not None and old.get("config") != config:
-            stored = old.get("config") or {}
-            diff = [k for k in sorted(set(stored) | set(config)) if stored.get(k) != config.get(k)]
+        stored = (old or {}).get("config") or {}
+        diff = [k for k in sorted(set(stored) | set(config)) if stored.get(k) != config.get(k)]
+        if old is not None and diff:
             raise DatasetError(f"{str(out)!r} holds a dataset of another configuration (differs in "
                                f"{', '.join(diff)}); give another --out or the same settings")
         _write_json(out / MANIFEST, _manifest(out, config))
@@ -306,12 +308,15 @@ class DatasetSummary:
 
     def format(self) -> str:
         """A table of the shard's objects and a one-line total."""
-        lines = [f"{'object':<28} {'status':<7} {'grasps':>8} {'FC %':>6} {'Q p50':>7} {'P(FC)':>6}"]
+        critical = any("critical_mu_p50" in r for r in self.rows.values())
+        lines = [f"{'object':<28} {'status':<7} {'grasps':>8} {'FC %':>6} {'Q p50':>7} {'P(FC)':>6}"
+                 + (f" {'mu* p50':>7}" if critical else "")]
         for name, r in sorted(self.rows.items()):
             if r.get("status") == "done":
-                p = r.get("p_fc_mean")
+                p, m = r.get("p_fc_mean"), r.get("critical_mu_p50")
                 lines.append(f"{name[:28]:<28} {'done':<7} {r['num']:>8,} {100 * r['force_closure_rate']:>6.1f} "
-                             f"{r.get('quality_p50', math.nan):>7.3f} {'' if p is None else format(p, '6.3f'):>6}")
+                             f"{r.get('quality_p50') or math.nan:>7.3f} {'' if p is None else format(p, '6.3f'):>6}"
+                             + (f" {'' if m is None else format(m, '7.3f'):>7}" if critical else ""))
             else:
                 lines.append(f"{name[:28]:<28} {'failed':<7} {r.get('reason', '')}")
         i, n = self.shard
@@ -321,12 +326,17 @@ class DatasetSummary:
 
 
 def config_of(*, fingers: int, num: int, seed: int, scheme: str, mu: float, num_edges: int, torque_test: str,
-              contact: str, torsion, robust) -> dict:
+              contact: str, torsion, robust, gripper=None, collision: bool = False, critical: bool = False) -> dict:
     """The dataset's configuration (:data:`CONFIG_KEYS`), as stored in the manifest."""
-    return json.loads(json.dumps({"fingers": int(fingers), "num": int(num), "seed": int(seed), "scheme": scheme, "mu": float(mu),
-            "edges": int(num_edges), "torque_test": torque_test, "contact": contact,
-            "torsion": None if torsion is None else float(torsion),
-            "robust": None if robust is None else robust.to_dict()}))  # as the manifest reads back
+    config = {"fingers": int(fingers), "num": int(num), "seed": int(seed), "scheme": scheme, "mu": float(mu),
+              "edges": int(num_edges), "torque_test": torque_test, "contact": contact,
+              "torsion": None if torsion is None else float(torsion),
+              "robust": None if robust is None else robust.to_dict()}
+    if gripper is not None:
+        config.update(gripper=gripper.to_dict(), collision=bool(collision), scheme="antipodal")
+    if critical:
+        config["critical"] = True
+    return json.loads(json.dumps(config))  # as the manifest reads back
 
 
 def _load(entry: ObjectEntry):
@@ -353,7 +363,7 @@ def build(
     out,
     *,
     num: int = 10_000,
-    fingers: int = 4,
+    fingers: int | None = None,
     mu: float = 0.364,
     num_edges: int = 8,
     seed: int = 0,
@@ -362,6 +372,9 @@ def build(
     contact: str = "hard",
     torsion: float | None = None,
     robust=None,
+    gripper=None,
+    collision: bool = False,
+    critical: bool | None = None,
     chunk: int | None = None,
     shard: tuple[int, int] | None = None,
     progress: bool = False,
@@ -372,9 +385,18 @@ def build(
         source: a folder of mesh files or a manifest file (:func:`list_objects`).
         out: the dataset folder (created; an existing one is resumed if its configuration is this).
         num, fingers, mu, num_edges, seed, scheme, torque_test, contact, torsion, chunk: as
-            :func:`grasp_jax.pipeline.run`, the same for every object.
+            :func:`grasp_jax.pipeline.run`, the same for every object (``fingers``: 4 by default,
+            2 with a gripper).
         robust: :class:`grasp_jax.pipeline.RobustLabels` to add robust labels (its ``obj`` is
-            set per object).
+            set per object). With a gripper and noise that moves contacts, the jaws are cast again
+            at every perturbed pose (:func:`grasp_jax.grippers.robust_jaws`).
+        gripper: a :class:`grasp_jax.grippers.ParallelJaw`: every object gets ``num`` antipodal
+            parallel-jaw grasps of this one gripper (widths in the objects' units, as scaled by
+            the manifest), ``fingers`` 2, with the jaw pose columns (``center``, ``axis``,
+            ``approach``, ``width``, ``jaw_status``); ``collision``: reject grasps whose gripper
+            body meets the object (needs python-fcl). As ``grasp-jax sample --gripper``.
+        critical: also the critical friction of each grasp (columns ``critical_mu``,
+            ``critical_status``, ``friction_label``); default: with a gripper only.
         shard: ``(i, N)``: this process does objects ``i::N`` (default: from the SLURM array
             variables, else all).
         progress: a progress bar over the objects.
@@ -389,6 +411,15 @@ def build(
     from . import pipeline
 
     t0 = time.perf_counter()
+    critical = gripper is not None if critical is None else bool(critical)
+    fingers = 4 if fingers is None and gripper is None else fingers
+    if gripper is not None:
+        if fingers not in (None, 2) or scheme != "uniform":
+            raise DatasetError("parallel-jaw grasps have 2 contacts, sampled antipodally: leave fingers and "
+                               "scheme at their defaults")
+        fingers = 2
+    elif collision:
+        raise DatasetError("collision checks the body of a gripper: give a gripper too")
     entries = list_objects(source)
     shard = shard if shard is not None else shard_from_environment() or (0, 1)
     i, n = shard
@@ -397,7 +428,8 @@ def build(
     mine = entries[i::n]
     out = Path(out)
     config = config_of(fingers=fingers, num=num, seed=seed, scheme=scheme, mu=mu, num_edges=num_edges,
-                       torque_test=torque_test, contact=contact, torsion=torsion, robust=robust)
+                       torque_test=torque_test, contact=contact, torsion=torsion, robust=robust, gripper=gripper,
+                       collision=collision, critical=critical)
     if robust is not None and robust.obj is not None:
         raise DatasetError("the robust labels of a dataset take each object in turn: leave RobustLabels.obj unset")
     _start(out, config)
@@ -420,7 +452,7 @@ def build(
                 continue
             record = _build_one(entry, out, pipeline, num=num, fingers=fingers, mu=mu, num_edges=num_edges,
                                 seed=seed, scheme=scheme, torque_test=torque_test, contact=contact, torsion=torsion,
-                                robust=robust, chunk=chunk)
+                                robust=robust, chunk=chunk, gripper=gripper, collision=collision, critical=critical)
             _write_json(out / RECORDS / f"{entry.name}.json", record)  # after the part: the object is done
             summary.rows[entry.name] = record
             if record["status"] == "done":
@@ -460,6 +492,8 @@ def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -
         quality_p50=_finite(result.quality_percentiles.get(50)), quality_mean=_finite(result.quality_mean),
         radius=float(obj.radius), seconds=time.perf_counter() - t0,
     )
+    if result.critical_percentiles:
+        record["critical_mu_p50"] = _finite(result.critical_percentiles.get(50))
     if result.robust is not None:
         record.update(p_fc_mean=_finite(result.robust["p_fc_mean"]),
                       p_fc_mean_nominal_fc=_finite(result.robust["p_fc_mean_nominal_fc"]),

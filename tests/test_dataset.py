@@ -177,3 +177,47 @@ def test_bad_input(tmp_path, env):  # noqa: F811
     out = grasp_jax("dataset", "empty", "--out", "ds", env=env, cwd=tmp_path, check=False)
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "holds no mesh files" in out.stderr
     assert not (tmp_path / "ds").exists()
+    out = grasp_jax("dataset", "empty", "--out", "ds", "--collision", env=env, cwd=tmp_path, check=False)
+    assert out.returncode == 2 and "--collision describes a gripper: add --gripper parallel-jaw" in out.stderr
+    out = grasp_jax("dataset", "empty", "--out", "ds", "--gripper", "parallel-jaw", env=env, cwd=tmp_path, check=False)
+    assert out.returncode == 2 and "needs --max-width" in out.stderr
+    from grasp_jax.grippers import ParallelJaw
+
+    with pytest.raises(dataset.DatasetError, match="2 contacts"):
+        dataset.build(tmp_path, tmp_path / "ds", gripper=ParallelJaw(0.1), fingers=3)
+    with pytest.raises(dataset.DatasetError, match="give a gripper too"):
+        dataset.build(tmp_path, tmp_path / "ds", collision=True)
+
+
+def test_parallel_jaw_dataset(meshes, tmp_path):
+    """A dataset of parallel-jaw grasps (Dex-Net / GraspNet style): jaw poses, soft contacts, critical
+    friction and GraspNet's friction label per grasp, robust labels with the jaws cast again; the
+    same rows as ``pipeline.run`` on each object alone; resumed only with the same gripper."""
+    from grasp_jax.grippers import ParallelJaw
+
+    jaw = ParallelJaw(0.1)
+    settings = dict(num=200, seed=3, mu=0.5, contact="soft", torsion=0.002, gripper=jaw,
+                    robust=pipeline.RobustLabels(Noise(position=0.02), samples=4, margin=False))
+    out = tmp_path / "ds"
+    summary = dataset.build(meshes, out, **settings)
+    assert summary.done == ["a_box", "b_ball", "c_can"]
+    rows = _rows(out)
+    assert {"center", "axis", "approach", "width", "jaw_status", "critical_mu", "friction_label", "p_fc"} <= set(rows)
+    assert rows["points"].shape == (600, 2, 3) and np.all(rows["width"] <= 0.1)
+    config = json.loads((out / "_manifest.json").read_text())["config"]
+    assert config["fingers"] == 2 and config["scheme"] == "antipodal" and config["critical"] is True
+    assert config["gripper"]["max_width"] == 0.1 and config["collision"] is False
+    record = summary.rows["b_ball"]
+    assert record["critical_mu_p50"] is not None and "mu* p50" in summary.format()
+    alone = {k: v for k, v in settings.items() if k != "num"}
+    ball = pipeline.run(dataset._load(dataset.list_objects(meshes)[1]), 200, 2, out=tmp_path / "ball.parquet",
+                        **alone)
+    assert ball.force_closure == record["force_closure"]
+    alone = pads.dataset(tmp_path / "ball.parquet", format="parquet").to_table()
+    mine = rows["object"] == "b_ball"
+    for name in ("force_closure", "quality", "critical_mu", "p_fc", "jaw_status"):
+        np.testing.assert_array_equal(np.asarray(alone.column(name).to_pylist()), rows[name][mine], err_msg=name)
+    with pytest.raises(dataset.DatasetError, match="differs in collision, critical, fingers, gripper"):
+        dataset.build(meshes, out, num=200, seed=3, mu=0.5, contact="soft", torsion=0.002,
+                      robust=settings["robust"])
+    assert dataset.build(meshes, out, **settings).skipped == ["a_box", "b_ball", "c_can"]
