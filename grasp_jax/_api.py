@@ -376,13 +376,14 @@ def critical_friction(
     fn = _bind(_critical_single, num_edges=num_edges, contact=contact)
     with scope:
         torsion, cap = jnp.asarray(torsion, points.dtype), jnp.asarray(cap, points.dtype)
-        # A first pass of few steps; the searches it leaves open again with every step
-        # (``_friction.FIRST_STEPS``). Every step has the full interior-point budget: after a short
-        # one, the crossover certified a vertex whose margin was 1e-8 too high where it is 0.
+        # A first pass of few steps, each with a short interior-point budget; the searches it
+        # leaves open again with every step and the full budget (``_friction.FIRST_STEPS``,
+        # ``FIRST_EXTRA_ITERATIONS``). (No crossover: ``_friction.CROSSOVER``.)
         columns = _friction.min_weight_columns(points.shape[-2], points.shape[-1], contact, num_edges)
         full = (np.int32(_friction.MAX_STEPS), np.int32(default_iterations(columns)))
         traced = is_traced(points)
-        first = full if traced else (np.int32(_friction.FIRST_STEPS), full[1])
+        short = min(int(full[1]), first_pass_iterations(columns) + _friction.FIRST_EXTRA_ITERATIONS)
+        first = full if traced else (np.int32(_friction.FIRST_STEPS), np.int32(short))
         retry = Retry((torsion, cap, *full), _search_open)
         mu, status = map_grasps(fn, (points, normals, tangents), (torsion, cap, *first), batch, progress=progress,
                                 retry=None if traced else retry)
