@@ -158,11 +158,7 @@ def _add_scoring(p: argparse.ArgumentParser, *, from_file: bool) -> None:
                    help="'exact' positive-spanning test (correct), or the paper's eq. (15) (only "
                         "necessary in 3D)" + dflt("exact"))
     _add_contact(g, dflt("hard"))
-    g.add_argument("--critical-friction", action=argparse.BooleanOptionalAction, default=None,
-                   help="also the smallest friction coefficient at which each grasp is force-closure "
-                        "(columns critical_mu, critical_status, friction_label: GraspNet-1Billion's "
-                        "0.2..1.2 label; about 1/7 of the throughput for two soft contacts, 1/20 for four "
-                        "hard ones) (default: on with --gripper, else off)")
+    _add_critical(g)
     g.add_argument("--epsilon", action="store_true",
                    help="also compute the Ferrari-Canny epsilon and hull volume with qhull (slow: "
                         "5-30 ms per grasp)")
@@ -333,6 +329,14 @@ def _add_sampling(p: argparse.ArgumentParser, *, num: int) -> None:
                    help="with --scheme paper: the facet of the first contact (default: drawn from --seed)")
 
 
+def _add_critical(g) -> None:
+    g.add_argument("--critical-friction", action=argparse.BooleanOptionalAction, default=None,
+                   help="also the smallest friction coefficient at which each grasp is force-closure "
+                        "(columns critical_mu, critical_status, friction_label: GraspNet-1Billion's "
+                        "0.2..1.2 label; about 1/10 of the throughput for two soft contacts, 1/16 for four "
+                        "hard ones) (default: on with --gripper, else off)")
+
+
 def _add_gripper(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("gripper (grasp_jax.grippers)")
     g.add_argument("--gripper", choices=("parallel-jaw",), default=None,
@@ -493,9 +497,7 @@ def _add_dataset(sub) -> None:
     g.add_argument("--edges", type=_int(3, "an integer >= 3"), default=8, help="edges of each friction cone")
     g.add_argument("--torque-test", choices=("exact", "paper"), default="exact", help="the torque test")
     _add_contact(g)
-    g.add_argument("--critical-friction", action=argparse.BooleanOptionalAction, default=None,
-                   help="also the smallest friction coefficient at which each grasp is force-closure (columns "
-                        "critical_mu, critical_status, friction_label) (default: on with --gripper, else off)")
+    _add_critical(g)
     _add_gripper(p)
     _add_robust(p)
     o = p.add_argument_group("performance and output")
