@@ -11,8 +11,6 @@ from hypothesis import strategies as st
 from grasp_jax import _jacobi
 from grasp_jax._closure import _gram_rank
 
-EIGH = jax.jit(jax.vmap(_jacobi.eigh))
-
 
 def _gram(rng, count, K, D, rank=None, dtype=np.float64):
     X = rng.normal(size=(count, K, D)) * rng.uniform(0.01, 10.0, size=(count, 1, D))
@@ -24,7 +22,7 @@ def _gram(rng, count, K, D, rank=None, dtype=np.float64):
 @pytest.mark.parametrize("K, rank", [(3, None), (7, None), (32, None), (32, 5), (32, 3), (4, None)])
 def test_eigenvalues_and_vectors_match_lapack(K, rank):
     G = _gram(np.random.default_rng(K), 500, K, 6, rank)
-    w, V = EIGH(G)
+    w, V = jax.jit(jax.vmap(_jacobi.eigh))(G)
     w, V = np.asarray(w), np.asarray(V)
     ref = np.linalg.eigvalsh(G)
     scale = np.max(np.abs(ref), axis=1, keepdims=True)
@@ -35,19 +33,13 @@ def test_eigenvalues_and_vectors_match_lapack(K, rank):
 
 def test_float32_and_special_matrices():
     G = _gram(np.random.default_rng(1), 300, 12, 6, dtype=np.float32)
-    w, _ = EIGH(G)
+    w, _ = jax.vmap(_jacobi.eigh)(G)
     ref = np.linalg.eigvalsh(G.astype(np.float64))
     np.testing.assert_allclose(np.sort(np.asarray(w), axis=1) / ref[:, -1:], ref / ref[:, -1:], atol=2e-6)
-    special = np.stack([np.zeros((6, 6)), np.eye(6), np.diag([3.0, 0, 1, 0, 2, 5]), np.full((6, 6), 2.0)] * 16)
-    w, V = EIGH(special)
+    special = np.stack([np.zeros((6, 6)), np.eye(6), np.diag([3.0, 0, 1, 0, 2, 5]), np.full((6, 6), 2.0)])
+    w, V = jax.vmap(_jacobi.eigh)(special)
     assert np.all(np.isfinite(w)) and np.all(np.isfinite(V))
     np.testing.assert_allclose(np.sort(np.asarray(w), axis=1), np.linalg.eigvalsh(special), atol=1e-14)
-
-
-#: One compiled program for every example, over a batch (64 copies): the suite compiles the sweep
-#: loop only with a large carry, as the library does (a 6x6 loop compiled on its own once crashed
-#: a test worker in XLA's executable serialization for the persistent cache; not reproduced).
-RANK = jax.jit(lambda X: jax.tree_util.tree_map(lambda a: a[0], jax.vmap(_gram_rank)(jax.numpy.stack([X] * 64))))
 
 
 @settings(max_examples=40, deadline=None)
@@ -57,7 +49,7 @@ def test_rank_test_agrees_with_lapack(rank, seed):
     vector is orthogonal to every vector of the set."""
     rng = np.random.default_rng(seed)
     X = rng.normal(size=(20, rank)) @ rng.normal(size=(rank, 6))
-    full, null = RANK(X)
+    full, null = _gram_rank(X)
     ev = np.linalg.eigvalsh(X.T @ X)
     assert bool(full) == (ev[0] > 1e-10 * ev[-1]) == (rank == 6)
     if rank < 6:
