@@ -20,7 +20,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from . import _jacobi
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
 from ._crossover import SENSITIVE, as_solution, polish, sensitivity, stacked
@@ -149,10 +148,9 @@ def _gram_rank(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
     eigenvalue (orthogonal to all of them when they do not)."""
     tol = tolerances(vectors.dtype)
     G = vectors.T @ vectors
-    evals, evecs = _jacobi.eigh(G)  # no LAPACK: the program runs on every CPU device (``_jacobi``)
-    low = jnp.argmin(evals)
-    full = evals[low] > tol.rank * jnp.maximum(jnp.max(evals), tol.tiny)
-    return full, jax.nn.one_hot(low, G.shape[0], dtype=G.dtype) @ evecs.T
+    evals, evecs = jnp.linalg.eigh(G)
+    full = evals[0] > tol.rank * jnp.maximum(evals[-1], tol.tiny)
+    return full, evecs[:, 0]
 
 
 def _gram_rank3(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
