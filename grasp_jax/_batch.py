@@ -14,12 +14,13 @@ Two paths:
 
 Devices. Several local devices (on a CPU: ``XLA_FLAGS=--xla_force_host_platform_device_count``)
 each score their slice of every chunk; the programs use no collective, and each chunk's result
-goes to the host at once, so the devices never wait for each other. One exception: a program
-that calls LAPACK (``jnp.linalg.eigh`` and the like; in grasp_jax the rank test of the 6-D
-min-weight LP) runs on one device. jaxlib's CPU LAPACK kernels split a batch over XLA's intra-op
-thread pool and block their pool thread until the pieces are done; with one device per core,
-every pool thread can be such a waiting kernel, and nothing is left to run the pieces: the
-program hangs for ever (seen with ``min_weight`` on two CPU devices). See :func:`_blocking_calls`.
+goes to the host at once, so the devices never wait for each other. A guard: a program that
+calls LAPACK (``jnp.linalg.eigh`` and the like) runs on one device. jaxlib's CPU LAPACK kernels
+split a batch over XLA's intra-op thread pool and block their pool thread until the pieces are
+done; with one device per core, every pool thread can be such a waiting kernel, and nothing is left
+to run the pieces: the program hangs for ever (seen with ``min_weight`` on two CPU devices, when
+the rank test of its 6-D LP called ``eigh``; it is now ``_closure.full_rank``, and no program of
+grasp_jax calls LAPACK). See :func:`_blocking_calls`.
 """
 
 from __future__ import annotations

@@ -51,7 +51,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from ._closure import _gram_rank, _gram_rank3, min_weight_lp, min_weight_value
+from ._closure import _gram_rank3, full_rank, min_weight_lp, min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._contact import columns_per_contact, wrench_columns
 from ._constants import default_iterations, tolerances
@@ -127,11 +127,10 @@ def _wrenches(points, normals, mu, num_edges, contact, torsion, tangents):
     return wrench_columns(points, normals, edges, contact, torsion, center, scale).wrenches
 
 
-def _spans(*vectors) -> jax.Array:
-    """Whether each ``(K, D)`` set spans R^D: one batched eigendecomposition for all of them (two
-    independent LAPACK calls in one program can deadlock XLA's CPU thread pool, ``_batch``)."""
-    rank = _gram_rank3 if vectors[0].shape[1] == 3 else _gram_rank
-    return jax.vmap(lambda v: rank(v)[0])(jax.lax.stop_gradient(jnp.stack(vectors)))
+def _spans(*vectors) -> tuple[jax.Array, ...]:
+    """Whether each ``(K, D)`` set spans R^D (no LAPACK: ``_closure.full_rank``)."""
+    rank = (lambda v: _gram_rank3(v)[0]) if vectors[0].shape[1] == 3 else full_rank
+    return tuple(rank(jax.lax.stop_gradient(v)) for v in vectors)
 
 
 def threshold(dtype) -> float:
