@@ -369,10 +369,12 @@ def optimize(
         objective: one of :data:`grasp_jax.OBJECTIVES` (see :mod:`grasp_jax._objectives`):
             ``"closure"`` (default), ``"closure_any"``, ``"min_weight"``, ``"signed_q"``, ``"dfc"``,
             ``"dfc_eig"``; or ``"robust"`` with ``noise``: the mean of ``"closure"`` over
-            ``robust_samples`` perturbations drawn once from ``key`` (reparameterized: contacts
-            moved by ``surface.chart``, normals tilted, friction per contact, pose noise to first
-            order), so that the grasps found hold under the noise; the best iterate is the one of
-            the largest mean.
+            ``robust_samples`` perturbations drawn once from ``key`` (the contacts that
+            :func:`grasp_jax.robust` would score under those draws, walked over the surface and
+            across edges; the gradient moves each in its own chart; normals tilted, friction per
+            contact), so that the grasps found hold under the noise; the best iterate is the one
+            of the largest mean. Best as a refinement of nominal optima (``init=``): see
+            ``experiments/robust_optimize.py``.
         optimizer: any ``optax.GradientTransformation`` on ``(n, d)`` updates in units of the
             object's radius (default: :func:`default_optimizer`, Adam with cosine decay, from
             random starts restarted after a third of the steps). Pass the

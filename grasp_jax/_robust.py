@@ -205,6 +205,31 @@ def _tilt(normal, g):
     return safe_normalize(jnp.cos(theta) * normal + jnp.where(ok, jnp.sin(theta) / safe, 1.0) * t)
 
 
+def _moved(surface, contacts, draw, sigmas, position: bool, pose: bool):
+    """The contacts of one sample moved over the surface by its position noise (a step in each
+    contact's tangent frame, walked across edges by ``surface.retract``) and pose noise (each finger
+    held in place while the object moves, the contact taken to the surface point under it by
+    :data:`PROJECTION_STEPS` retractions). ``contacts``: leading ``(n,)``; returns the same."""
+    s_pos, _, _, _, _, s_rot, s_trans = sigmas
+    embed = jax.vmap(surface.embed)
+    retract = jax.vmap(surface.retract)
+    c = contacts
+    if position:
+        _, n0 = embed(c)
+        steps = jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, jax.vmap(_tangents)(n0))
+        c = retract(c, steps)
+    if pose:
+        fingers, _ = embed(c)
+        center = jnp.asarray(surface.center, fingers.dtype)
+        R = _rotation(s_rot * draw.rotation)
+        # the object moved by x -> R (x - center) + center + t: fingers in its frame
+        target = (fingers - center - s_trans * draw.translation) @ R + center
+        for _ in range(PROJECTION_STEPS):
+            here, _ = embed(c)
+            c = retract(c, target - here)
+    return c
+
+
 def _perturb_one(surface, contacts, points, normals, draw, sigmas, mu, *, flags):
     """One sample of one grasp: ``(points (n, d), normals (n, d), mu (n,))``.
 
@@ -216,23 +241,7 @@ def _perturb_one(surface, contacts, points, normals, draw, sigmas, mu, *, flags)
     position, pose, tilt, friction = flags
     s_pos, s_normal, lo, hi, s_mu, s_rot, s_trans = sigmas
     if position or pose:
-        embed = jax.vmap(surface.embed)
-        retract = jax.vmap(surface.retract)
-        c = contacts
-        if position:
-            _, n0 = embed(c)
-            steps = jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, jax.vmap(_tangents)(n0))
-            c = retract(c, steps)
-        if pose:
-            fingers, _ = embed(c)
-            center = jnp.asarray(surface.center, fingers.dtype)
-            R = _rotation(s_rot * draw.rotation)
-            # the object moved by x -> R (x - center) + center + t: fingers in its frame
-            target = (fingers - center - s_trans * draw.translation) @ R + center
-            for _ in range(PROJECTION_STEPS):
-                here, _ = embed(c)
-                c = retract(c, target - here)
-        points, normals = embed(c)
+        points, normals = jax.vmap(surface.embed)(_moved(surface, contacts, draw, sigmas, position, pose))
     if tilt:
         normals = jax.vmap(_tilt)(normals, s_normal * draw.tilt)
     n = points.shape[0]
@@ -292,24 +301,25 @@ def reparameterized(noise: Noise, key, samples: int, n: int, d: int, scale: floa
 def robust_value(surface, contacts, v, mu, noise: Reparameterized, objective, *, flags):
     """The mean of ``objective(points, normals, mu (n,))`` over the fixed perturbations of one
     grasp, differentiable in the ambient displacement ``v: (n, d)`` (in object radii; the
-    optimizer's chart variable): each perturbed contact is ``surface.chart(c, v + step)``, with
-    ``step`` the position noise in the contact's tangent frame plus the displacement that the pose
-    noise gives its finger (first order: the tangent part moves it), normals tilted, friction per
-    contact. Returns ``(mean value, value of each perturbation (K,))``."""
+    optimizer's chart variable, 0 where the gradient is taken).
+
+    Each perturbed contact is the one :func:`grasp_jax.robust` scores (:func:`_moved`: the
+    position step walked over the surface, across edges; the pose noise's finger projected back)
+    and ``v`` moves it in its own chart, ``surface.chart(moved, v)``: the derivative is that of
+    the objective at the perturbed grasp when every contact moves by ``v``, carried along with it
+    (where the perturbation stays on one face, exactly the derivative of moving the unperturbed
+    contact first). Normals tilted, friction per contact. (A chart of the unperturbed contact,
+    ``chart(c, v + step)``, kept a contact in its face's plane on a mesh: the objective never saw
+    a slip across an edge, which is what loses a grasp near one.) Returns ``(mean value, value of
+    each perturbation (K,))``."""
     position, pose, tilt, friction = flags
-    s_pos, s_normal, lo, hi, s_mu, s_rot, s_trans = noise.sigmas
-    here, n0 = jax.vmap(surface.embed)(contacts)
-    frames = jax.lax.stop_gradient(jax.vmap(_tangents)(n0))
+    _, s_normal, lo, hi, s_mu, _, _ = noise.sigmas
 
     def one(draw):
-        step = jnp.zeros_like(here)
-        if position:
-            step = step + jnp.einsum("nk,nkd->nd", s_pos * draw.tangent, frames)
-        if pose:
-            center = jnp.asarray(surface.center, here.dtype)
-            R = _rotation(s_rot * draw.rotation)
-            step = step + (here - center - s_trans * draw.translation) @ R + center - here
-        points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale + step)
+        moved = contacts
+        if position or pose:
+            moved = jax.lax.stop_gradient(_moved(surface, contacts, draw, noise.sigmas, position, pose))
+        points, normals = jax.vmap(surface.chart)(moved, v * surface.scale)
         if tilt:
             normals = jax.vmap(_tilt)(normals, s_normal * draw.tilt)
         if friction == "uniform":

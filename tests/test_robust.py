@@ -238,3 +238,45 @@ def test_optimize_for_robustness():
         gj.optimize(rectangle, objective="robust", **kw)
     with pytest.raises(ValueError, match="noise is only used by it"):
         gj.optimize(rectangle, objective="closure", noise=gj.Noise(position=0.1), **kw)
+
+
+def test_robust_objective_scores_the_perturbed_contacts_of_robust():
+    """objective="robust" sees the very grasps ``gj.robust`` scores under the same draws (on a mesh,
+    contacts walked across edges onto other faces, not kept in their face's plane), and its
+    derivative in the chart displacement is that of the objective there (finite differences)."""
+    import jax.numpy as jnp
+
+    from grasp_jax import _robust
+
+    glass = objects.load("glass")
+    surface = surfaces.for_object(glass, normals="flat")
+    p, n = _grasps(glass, 1, seed=5)
+    noise = gj.Noise(position=0.05, normal=0.05, friction=(0.7, 1.0))
+    key, K = jax.random.key(3), 6
+    pp, nn, mm = gj.perturb(glass, p, n, mu=MU, noise=noise, key=key, samples=K)
+    rng = np.random.default_rng(0)
+    W1, W2, w3 = rng.normal(size=(N, 3)), rng.normal(size=(N, 3)), rng.normal(size=N)
+
+    def objective(points, normals, mu):
+        return jnp.sum(points * W1) + jnp.sum(jnp.tanh(normals) * W2) + jnp.sum(mu * w3)
+
+    with jax.enable_x64(True):
+        contacts = surface.locate(p[0])
+        draws = _robust.reparameterized(noise, key, K, N, 3, float(surface.scale), np.float64)
+
+        def mean(v):
+            return _robust.robust_value(surface, contacts, v, MU, draws, objective, flags=noise._flags())
+
+        (_, values), grad = jax.value_and_grad(mean, has_aux=True)(jnp.zeros((N, 3)))
+        expected = [objective(pp[0, k], nn[0, k], mm[0, k]) for k in range(K)]
+        np.testing.assert_allclose(np.asarray(values), np.asarray(expected), rtol=0, atol=1e-12)
+        h = 1e-6
+        fd = np.zeros((N, 3))
+        for i in range(N):
+            for j in range(3):
+                e = np.zeros((N, 3))
+                e[i, j] = h
+                fd[i, j] = (mean(jnp.asarray(e))[0] - mean(jnp.asarray(-e))[0]) / (2 * h)
+        np.testing.assert_allclose(np.asarray(grad), fd, rtol=1e-6, atol=1e-8)
+    moved = surface.locate(pp[0].reshape(-1, 3)).face.reshape(K, N)
+    assert np.any(moved != np.asarray(contacts.face)[None])  # some contacts left their face
