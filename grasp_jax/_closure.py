@@ -557,6 +557,39 @@ def evaluate_one(
     )
 
 
+#: A grasp counts as settled out of equilibrium (:func:`out_of_equilibrium`) when weak duality
+#: puts ``delta*`` below ``-SETTLED`` times the margin tolerance: far enough below the verdict's
+#: threshold (``delta* > margin``) that :func:`evaluate_one`, whose ``delta`` is accurate to well
+#: within 10 margins (float32: |dQ| < 7e-5 against a margin of 2e-5), reports the same.
+SETTLED = 10.0
+
+
+def quality_dual_one(points, normals, mu, num_edges: int, tangents=None, contact: str = "hard", torsion=0.0):
+    """``(rows,)`` the dual vector of one grasp's quality LP (zeros where the LP is not solved to
+    optimality): for :func:`out_of_equilibrium` on grasps near this one (the perturbations of a
+    robust label)."""
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    lp = quality_lp(about_first(points, normals, edges, contact, torsion), edges)
+    (sol,) = solve(jax.lax.stop_gradient(lp), consistent=True)
+    y = jnp.where(sol.status == Status.OPTIMAL, sol.y, 0.0)
+    return jnp.where(jnp.all(jnp.isfinite(y)), y, 0.0)
+
+
+def out_of_equilibrium(points, normals, mu, num_edges: int, y, tangents=None, contact: str = "hard", torsion=0.0):
+    """Whether the dual vector ``y`` (any: from :func:`quality_dual_one` of a nearby grasp) proves
+    that one grasp is not in equilibrium, with no LP solved: the weak-duality bound
+    :func:`quality_bound` of its quality LP is below ``-SETTLED`` margins. Then
+    :func:`evaluate_one` would report it not in equilibrium, Q 0, not force-closure. ``False``
+    proves nothing."""
+    tol = tolerances(points.dtype)
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    lp = quality_lp(about_first(points, normals, edges, contact, torsion), edges)
+    bound, slack = quality_bound(lp, jnp.asarray(y, points.dtype))
+    return bound + slack < -SETTLED * tol.margin
+
+
 def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None,
                 restarts=None, contact: str = "hard", torsion=0.0):
     """``(Q, LP status)`` of one grasp: Q is ``delta*`` of the quality LP, clipped at 0 unless

@@ -344,6 +344,16 @@ def _evaluate_single(points, normals, tangents, mu, shared, *, num_edges, torque
                                  contact, torsion)
 
 
+def _dual_single(points, normals, tangents, mu, shared, *, num_edges, contact):
+    (torsion,) = shared
+    return _closure.quality_dual_one(points, normals, mu, num_edges, tangents, contact, torsion)
+
+
+def _settled_single(points, normals, tangents, mu, y, shared, *, num_edges, contact):
+    (torsion,) = shared
+    return _closure.out_of_equilibrium(points, normals, mu, num_edges, y, tangents, contact, torsion)
+
+
 def _min_weight_single(points, normals, tangents, mu, shared, *, num_edges, contact):
     torsion, origin, torque_scale = shared
     return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, None,
@@ -616,6 +626,15 @@ def warn_unconverged(result: RobustResult, stuck: int, what: str) -> None:
                       "(margin 0); see RobustResult.unconverged", RuntimeWarning, stacklevel=3)
 
 
+def _nominal_duals(perturber, contact: str, torsion) -> np.ndarray:
+    """``(total, rows)`` the quality LP's dual of each nominal grasp of ``perturber``
+    (``_closure.quality_dual_one``; zeros where unsolved): what screens its perturbations."""
+    points, normals = perturber.points, perturber.normals
+    mu = np.full(points.shape[:-1], perturber.mu, perturber.dtype)
+    fn = _bind(_dual_single, num_edges=perturber.num_edges, contact=contact)
+    return np.asarray(map_grasps(fn, (points, normals, None, mu), (torsion,), (perturber.total,)))
+
+
 def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_scale, progress):
     """Score the perturbations of ``perturber`` and reduce them to a :class:`RobustResult`: the one
     scoring path of :func:`robust` and :func:`grasp_jax.grippers.robust_jaws`.
@@ -632,6 +651,7 @@ def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque
     num_edges = perturber.num_edges
     evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
     weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
+    settled_fn = _bind(_settled_single, num_edges=num_edges, contact=contact)
     budget, retry = _passes(perturber.points, num_edges, None, contact)
     per = perturber.per
     fields = {name: [] for name in RobustResult.COLUMNS}
@@ -647,23 +667,39 @@ def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque
         shared = (t, *budget)
         retries = tuple(Retry((t, *pass_), _unfinished) for pass_ in retry)
         weight_shared = (t, jnp.asarray(perturber.center, dtype), jnp.asarray(torque_scale, dtype))
+        duals = _nominal_duals(perturber, contact, t)
         for start in starts:
             stop = min(start + per, total)
             g = stop - start
             pp, nn, mm, ok = perturber.slice(start, stop)
-            res = map_grasps(evaluate_fn, (pp, nn, None, mm), shared, (g, samples), retry=retries)
-            fc, q, conv = np.asarray(res.force_closure), np.asarray(res.quality), np.asarray(res.converged)
+            # Screening (SETTLED): a perturbation that the dual of its nominal grasp's quality LP
+            # proves out of equilibrium is not force-closure, Q 0, margin 0, with no LP solved;
+            # only the others ("live") are scored, gathered into full blocks.
+            y = np.broadcast_to(duals[start:stop, None], (g, samples, duals.shape[-1]))
+            settled = np.asarray(map_grasps(settled_fn, (pp, nn, None, mm, y), (t,), (g, samples)))
             if ok is not None:
-                fc, q, conv = fc & ok, np.where(ok, q, q.dtype.type(0)), conv | ~ok
+                settled = settled | ~ok
+            live = np.flatnonzero(~settled.reshape(-1))
+            n, d = pp.shape[-2:]
+            gathered = (pp.reshape(-1, n, d)[live], nn.reshape(-1, n, d)[live], None, mm.reshape(-1, n)[live])
+            fc, q = np.zeros(g * samples, bool), np.zeros(g * samples, dtype)
+            conv = np.ones(g * samples, bool)
+            if len(live):
+                res = map_grasps(evaluate_fn, gathered, shared, (len(live),), retry=retries)
+                fc[live], q[live], conv[live] = (np.asarray(res.force_closure), np.asarray(res.quality),
+                                                 np.asarray(res.converged))
+            fc, q, conv = fc.reshape(g, samples), q.reshape(g, samples), conv.reshape(g, samples)
             fields["p_fc"].append(fc.mean(axis=1))
             fields["unconverged"].append((~conv).sum(axis=1).astype(np.int32))
             for name, value in zip(("q_mean", "q_mean_se", "q_low"), _stats(q, quantile)):
                 fields[name].append(value)
             if margin:
-                l_star, status = map_grasps(weight_fn, (pp, nn, None, mm), weight_shared, (g, samples))
-                l_star, open_ = np.maximum(np.asarray(l_star), 0.0), np.asarray(status) == Status.NOT_CONVERGED
-                if ok is not None:
-                    l_star, open_ = np.where(ok, l_star, l_star.dtype.type(0)), open_ & ok
+                l_star, open_ = np.zeros(g * samples, dtype), np.zeros(g * samples, bool)
+                if len(live):
+                    l_live, status = map_grasps(weight_fn, gathered, weight_shared, (len(live),))
+                    l_star[live] = np.maximum(np.asarray(l_live), 0.0)
+                    open_[live] = np.asarray(status) == Status.NOT_CONVERGED
+                l_star, open_ = l_star.reshape(g, samples), open_.reshape(g, samples)
                 stuck += int(np.sum(open_))
                 for name, value in zip(("margin_mean", "margin_mean_se", "margin_low"), _stats(l_star, quantile)):
                     fields[name].append(value)
