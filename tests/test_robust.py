@@ -76,9 +76,19 @@ def test_p_fc_equals_a_loop_of_evaluate_over_the_same_draws(box, box_grasps):
     pp, nn, mm = gj.perturb(box, p, n, mu=MU, noise=noise, key=key, samples=16)
     assert pp.shape == (12, 16, N, 3) and mm.shape == (12, 16, N)
     np.testing.assert_array_equal(mm, MU * 0.8)
+    # The screening of gj.robust: perturbations that the nominal grasp's dual proves out of
+    # equilibrium are settled without an LP (some are, here); evaluate agrees on every one.
+    from grasp_jax import _closure
+
+    with jax.enable_x64(True):
+        duals = jax.vmap(lambda a, b: _closure.quality_dual_one(a, b, MU, 8))(p, n)
+        settled = np.asarray(jax.vmap(jax.vmap(lambda a, b, y: _closure.out_of_equilibrium(a, b, MU * 0.8, 8, y),
+                                               in_axes=(0, 0, None)))(pp, nn, duals))
+    assert 0.05 < settled.mean() < 0.95
     for g in range(len(p)):  # brute force: one evaluate per grasp, over its 16 perturbations
         ev = gj.evaluate(pp[g], nn[g], mu=MU * 0.8)
         fc, q = np.asarray(ev.force_closure), np.asarray(ev.quality)
+        assert not np.any(np.asarray(ev.equilibrium)[settled[g]])
         assert res.p_fc[g] == fc.mean()
         np.testing.assert_allclose(res.q_mean[g], q.mean(), rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(res.q_low[g], np.quantile(q, 0.1), rtol=1e-12, atol=1e-15)
