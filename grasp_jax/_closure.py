@@ -85,6 +85,16 @@ def quality_lp(cols: Columns, edges: jax.Array) -> LP:
     return LP(A, b, c)
 
 
+def grasp_quality_lp(points, normals, mu, num_edges: int, tangents=None, contact: str = "hard", torsion=0.0
+                     ) -> tuple[LP, Columns]:
+    """The quality LP of one grasp from its contacts (normals normalized, cone edges, columns
+    about ``c_1``), and those columns."""
+    normals = safe_normalize(normals)
+    edges = cone_edges(normals, mu, num_edges, tangents)
+    cols = about_first(points, normals, edges, contact, torsion)
+    return quality_lp(cols, edges), cols
+
+
 def quality_bound(lp: LP, y: jax.Array) -> tuple[jax.Array, jax.Array]:
     """An upper bound on ``delta*`` of :func:`quality_lp` from any dual vector ``y``, by weak duality.
 
@@ -475,12 +485,8 @@ def evaluate_one(
     """
     tol = tolerances(points.dtype)
     d = points.shape[-1]
-    normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    cols = about_first(points, normals, edges, contact, torsion)
+    q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     tau = cols.torque[cols.fixed:]
-
-    q_lp = quality_lp(cols, edges)
     if d == 3 and torque_test == "exact":
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
@@ -568,9 +574,7 @@ def quality_dual_one(points, normals, mu, num_edges: int, tangents=None, contact
     """``(rows,)`` the dual vector of one grasp's quality LP (zeros where the LP is not solved to
     optimality): for :func:`out_of_equilibrium` on grasps near this one (the perturbations of a
     robust label)."""
-    normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    lp = quality_lp(about_first(points, normals, edges, contact, torsion), edges)
+    lp, _ = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     (sol,) = solve(jax.lax.stop_gradient(lp), consistent=True)
     y = jnp.where(sol.status == Status.OPTIMAL, sol.y, 0.0)
     return jnp.where(jnp.all(jnp.isfinite(y)), y, 0.0)
@@ -583,9 +587,7 @@ def out_of_equilibrium(points, normals, mu, num_edges: int, y, tangents=None, co
     :func:`evaluate_one` would report it not in equilibrium, Q 0, not force-closure. ``False``
     proves nothing."""
     tol = tolerances(points.dtype)
-    normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    lp = quality_lp(about_first(points, normals, edges, contact, torsion), edges)
+    lp, _ = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     bound, slack = quality_bound(lp, jnp.asarray(y, points.dtype))
     return bound + slack < -SETTLED * tol.margin
 
@@ -595,10 +597,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     """``(Q, LP status)`` of one grasp: Q is ``delta*`` of the quality LP, clipped at 0 unless
     ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``restarts``,
     ``contact``, ``torsion``: see :func:`evaluate_one`."""
-    normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    cols = about_first(points, normals, edges, contact, torsion)
-    lp = quality_lp(cols, edges)
+    lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
     tol = tolerances(points.dtype)
     polished, forced = None, False
