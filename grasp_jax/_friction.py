@@ -4,13 +4,21 @@ Force-closure is monotone in ``mu``: an edge of the pyramid of ``mu_1 < mu_2`` i
 combination of the edges of ``mu_2`` (edges are ``z + mu d_j`` and the ``d_j`` sum to 0), so the
 set of ``mu`` at which a grasp holds is an interval ``(mu*, inf)``, and the span of the wrenches is
 the same for every ``mu > 0``. ``mu*`` is the root of the classical min-weight margin ``l*(mu)``
-on the contact model's wrenches (``_contact``; ``l* > 0`` exactly at force-closure), found in a
-bracket ``[lo, hi]`` with ``l*(lo) <= 0 < l*(hi)``:
+on the contact model's wrenches (``_contact``; ``l* > 0`` exactly at force-closure). The function
+searched is ``g(mu) = mu l*(mu)``, which has the same root and is nearly straight: with
+``s = mu / mu_0`` each edge of the pyramid of ``mu`` is ``(1 - s)`` times the axis plus ``s`` times
+an edge of ``mu_0``, so in the weights of the ``mu_0`` edges the margin's constraints read
+``gamma_ij - (1 - s) mean_j(gamma_i) >= s l``: ``mu l*(mu)`` is ``mu_0`` times the optimum of an LP
+whose constraints move linearly with ``s``. (``l*`` itself flattens at large ``mu``, so a Newton
+step from the cap on it overshot far below ``mu*``: 7.8 steps per grasp on average, 22 at the 99th
+percentile, against 5.2 and 11 on ``g``; random 4-finger ellipsoid grasps.) It is found in a
+bracket ``[lo, hi]`` with ``g(lo) <= 0 < g(hi)``:
 
 * a Newton step from either end, with the LP's envelope derivative ``d l* / d mu`` (one extra
-  matrix-vector product per solve), taken when it falls inside the bracket; ``l*`` is piecewise
-  smooth in ``mu`` (one piece per optimal basis), and a generalized linear-fractional problem such
-  as this one is what Dinkelbach-type (Newton) iterations solve in a few steps;
+  matrix-vector product per solve; ``g' = l* + mu d l* / d mu``), taken when it falls inside the
+  bracket; ``l*`` is piecewise smooth in ``mu`` (one piece per optimal basis), and a generalized
+  linear-fractional problem such as this one is what Dinkelbach-type (Newton) iterations solve in
+  a few steps;
 * false position (Illinois) where Newton leaves the bracket, and bisection where the bracket did
   not halve in two steps (Dex-Net's soft model has ``l* = 0`` on the whole interval below
   ``mu*``, with no slope to follow);
@@ -66,18 +74,21 @@ RTOL_FLOAT32 = 3e-5
 #: ``mu* = 0.08`` took 40).
 MAX_STEPS = 64
 #: Steps of the first pass over a batch (``_batch.Retry``): a vmapped search runs until the slowest
-#: grasp of its block has converged; 90% of grasps need at most 10 steps, a few 35, so the first
-#: pass stops at this many and the grasps it leaves open are searched again with :data:`MAX_STEPS`.
-FIRST_STEPS = 12
+#: grasp of its block has converged; 95% of random 4-finger grasps need at most 7 steps (median 5,
+#: 99th percentile 11, a few 27), two soft contacts 3 or 4, so the first pass stops at this many and
+#: the grasps it leaves open are searched again with :data:`MAX_STEPS`. (8,192 ellipsoid grasps, 4
+#: hard fingers, 2 CPU devices, one run: 6 / 7 / 8 / 10 steps gave 2,368 / 2,696 / 2,401 / 1,816
+#: searches/s with :data:`FIRST_EXTRA_ITERATIONS` = 2.)
+FIRST_STEPS = 7
 #: Interior-point iterations per step in the first pass, beyond ``_constants.first_pass_iterations``
 #: of the LP's size (14 for 4 hard fingers, 8 edges): a step whose LP is unfinished then proves
 #: nothing (it becomes a lower end on credit, and a search that ends on such an end is searched
 #: again with the full budget), while the full budget made every step of a block wait for its
 #: slowest LP (about 15 iterations). Measured, 8,192 ellipsoid grasps, 4 hard fingers, 2 CPU
-#: devices, one run: 1,139 searches/s with the full budget, 1,452 / 1,492 / 1,511 with 11 / 12 /
-#: 14 iterations (10: 1,089, too many searches left for the second pass); critical friction
-#: within 2.2e-7 relative of the full-budget search's.
-FIRST_EXTRA_ITERATIONS = 4
+#: devices, one run, 7 first-pass steps: 1,729 / 2,696 / 2,307 searches/s with 10 / 12 / 14
+#: iterations (10: too many searches left for the second pass); critical friction within 1.3e-7
+#: relative of the full-budget search's.
+FIRST_EXTRA_ITERATIONS = 2
 #: Default upper end of the search: a grasp not force-closure at this ``mu`` gets ``inf``
 #: (status ``ABOVE_CAP``). ``mu = 4`` is a cone half-angle of 76 degrees.
 DEFAULT_CAP = 4.0
@@ -168,9 +179,10 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
 
     def value_and_slope(mu):
         # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
-        # negative without doubt.
+        # negative without doubt; the function searched is mu (l* - thr), with the same root
+        # (``_scaled``).
         (f, status), (df, _) = jax.jvp(lambda m: margin(points, normals, m, torsion), (mu,), (jnp.ones_like(mu),))
-        return f - thr, df, status == Status.NOT_CONVERGED
+        return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED
 
     zero = jnp.zeros((), dt)
     f_hi, d_hi, bad_hi = value_and_slope(cap)
@@ -189,7 +201,8 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
     # without progress, side kept by the last steps (Illinois), the last point whose LP failed and
     # became the lower end, -1 if none)
     state = (
-        jnp.zeros((), jnp.int32), zero, jnp.asarray(cap, dt), jnp.minimum(f_lo, 0.0), f_hi, zero, d_hi,
+        # (at mu = 0 the function searched, mu (l* - thr), is 0 whatever l*(0) is)
+        jnp.zeros((), jnp.int32), zero, jnp.asarray(cap, dt), jnp.minimum(zero * f_lo, 0.0), f_hi, zero, d_hi,
         jnp.asarray(known_lo), jnp.abs(f_hi), jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32),
         jnp.where(bad_lo, zero, -jnp.ones((), dt)),
     )
@@ -245,6 +258,7 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
     converged = _closed(lo, hi) & (failed < lo)
     # l* = thr + f_hi at hi: the root of l* = 0 one Newton step back, where that step is short (the
     # slope is not ~0 there); the grasp holds for every mu above it.
+    f_hi, d_hi = f_hi / hi, (d_hi - f_hi / hi) / hi  # back to l* - thr and its slope at hi
     back = (f_hi + thr) / jnp.where(d_hi > 0, d_hi, 1.0)
     hi = jnp.where((d_hi > 0) & (back >= 0) & (back <= BACK * hi), hi - back, hi)
     mu = jnp.where(frictionless, 0.0, jnp.where(found, hi, jnp.inf))
