@@ -22,8 +22,8 @@ bracket ``[lo, hi]`` with ``g(lo) <= 0 < g(hi)``:
 * false position (Illinois) where Newton leaves the bracket, and bisection where the bracket did
   not halve in two steps (Dex-Net's soft model has ``l* = 0`` on the whole interval below
   ``mu*``, with no slope to follow);
-* a step that would land within ``rtol / 2`` of an end is moved to ``rtol / 2`` from it, so that
-  the bracket closes from both sides,
+* a step that would land within ``rtol / 2`` (relative) of an end is moved to ``rtol / 2`` times
+  that end from it, so that the bracket closes from both sides,
 
 until ``hi - lo <= rtol * hi`` (or ``hi <= ATOL * cap``: a grasp that holds at every ``mu > 0`` but
 not at 0, such as Dex-Net's soft pairs on a diameter, has ``mu* = 0`` as an infimum only).
@@ -234,8 +234,10 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, *, num_edges, contac
         x = jnp.where(ok_hi | ok_lo, newton, jnp.where(ok_secant, secant, fallback))
         # Two steps that neither halved the bracket nor halved |l*|: bisect.
         x = jnp.where(stall >= 2, lo + 0.5 * width, x)
-        gap = 0.5 * rtol * hi
-        x = jnp.clip(x, lo + gap, hi - gap)
+        # Kept half the accuracy from each end, in units of that end: a step from lo that lands
+        # next to it then closes the bracket however far hi still is (with hi's unit it could not
+        # while hi was the cap, and cost one more step).
+        x = jnp.clip(x, lo + 0.5 * rtol * jnp.where(lo > 0, lo, hi), hi - 0.5 * rtol * hi)
         fx, dx, bad_x = value_and_slope(x)
         # An LP that did not converge (near the friction at which the LP turns infeasible, say)
         # proves nothing: x is not taken as force-closure, and becomes a lower end on credit
