@@ -325,10 +325,15 @@ def _bind(func: Callable, **kwargs) -> _Bound:
     return _Bound(func, tuple(sorted(kwargs.items())))
 
 
-def _critical_single(points, normals, tangents, shared, *, num_edges, contact):
+def _critical_single(points, normals, tangents, start, shared, *, num_edges, contact):
     torsion, cap, steps, iterations = shared  # traced: both passes run one compiled program
     return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
-                                           steps)
+                                           steps, start)
+
+
+def _resume_search(out, batched):
+    """The second pass of :func:`critical_friction` goes on from the first pass's brackets."""
+    return (*batched[:-1], out[2])
 
 
 def _search_open(out) -> jax.Array:
@@ -384,9 +389,13 @@ def critical_friction(
         traced = is_traced(points)
         short = min(int(full[1]), first_pass_iterations(columns) + _friction.FIRST_EXTRA_ITERATIONS)
         first = full if traced else (np.int32(_friction.FIRST_STEPS), np.int32(short))
-        retry = Retry((torsion, cap, *full), _search_open)
-        mu, status = map_grasps(fn, (points, normals, tangents), (torsion, cap, *first), batch, progress=progress,
-                                retry=None if traced else retry)
+        # The second pass resumes each open search from its last proven bracket
+        # (``_friction._search``), rather than from [0, cap] again.
+        retry = Retry((torsion, cap, *full), _search_open, _resume_search)
+        start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
+            np.zeros(batch + (_friction.RESUME,), points.dtype)
+        mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,
+                                   progress=progress, retry=None if traced else retry)
     if not is_traced(status):
         stuck = int(np.sum(np.asarray(status) == _friction.FrictionStatus.NOT_CONVERGED))
         if stuck:

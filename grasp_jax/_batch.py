@@ -133,10 +133,15 @@ class Retry:
     Attributes:
         shared: the ``shared`` argument of the second pass (for example a larger budget).
         unfinished: ``out -> (batch,) bool`` on the first pass's output, as NumPy arrays.
+        resume: optional ``(out, batched) -> batched``: the per-grasp inputs of the second pass
+            from the first pass's output and inputs (the batched arrays that are not ``None``,
+            flattened to ``(total, ...)``, NumPy), with the same shapes and types, so that a
+            search can go on where the first pass left it (``gj.critical_friction``).
     """
 
     shared: object
     unfinished: Callable
+    resume: Callable | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -406,7 +411,10 @@ def map_grasps(
         if devices[0].platform != "cpu":
             cap, cap_block = _retry_sizes(devices, chunk, block)
             second = _program(call, grasp_specs, shared, cap, cap_block, multi)
-        redo = _score(second, flat, retry_shared, again, again.size)
+        again_flat = flat if retry.resume is None else tuple(np.asarray(a) for a in retry.resume(out, flat))
+        if [(a.shape, a.dtype) for a in again_flat] != [(a.shape, a.dtype) for a in flat]:
+            raise TypeError("Retry.resume must return the batched arrays with their shapes and types")
+        redo = _score(second, again_flat, retry_shared, again, again.size)
 
         def put(old, new, again=again):
             old = np.array(old)  # device_get may hand out read-only arrays

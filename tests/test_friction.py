@@ -104,6 +104,24 @@ def test_gradient_against_finite_differences():
     np.testing.assert_allclose(analytic, fd, rtol=2e-3, atol=1e-4)
 
 
+def test_second_pass_resumes_the_first_pass_bracket():
+    """A search cut short (2 steps of a short LP budget: most are left open) and resumed from the
+    state it ended with (what ``gj.critical_friction``'s second pass does) finds the ``mu*`` of a
+    search run whole from ``[0, cap]``."""
+    from grasp_jax import _friction
+
+    points, normals = _batch("cylinder", 4, 24, seed=11)
+    run = jax.jit(jax.vmap(lambda p, q, steps, its, start: _friction.critical_friction_one(
+        p, q, 4.0, 8, steps=steps, iterations=its, start=start), in_axes=(0, 0, None, None, 0)))
+    fresh = jnp.zeros((len(points), _friction.RESUME))
+    _, first, state = run(points, normals, 2, 10, fresh)
+    mu, status, _ = run(points, normals, 64, 30, state)
+    whole, whole_status, _ = run(points, normals, 64, 30, fresh)
+    assert np.sum(np.asarray(first) == gj.FrictionStatus.NOT_CONVERGED) >= len(points) // 2
+    assert (np.asarray(status) == FOUND).all() and (np.asarray(whole_status) == FOUND).all()
+    np.testing.assert_allclose(mu, whole, rtol=1e-6)
+
+
 def test_batch_equals_a_loop_and_jit():
     points, normals = _batch("box", 3, 6, seed=11)
     mu, status = map(np.asarray, gj.critical_friction(points, normals))
