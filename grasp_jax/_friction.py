@@ -81,10 +81,11 @@ RTOL_FLOAT32 = 3e-5
 MAX_STEPS = 64
 #: Steps of the first pass over a batch (``_batch.Retry``): a vmapped search runs until the slowest
 #: grasp of its block has converged; 95% of random 4-finger grasps need at most 7 steps (median 5,
-#: 99th percentile 11, a few 27), two soft contacts 3 or 4, so the first pass stops at this many and
-#: the grasps it leaves open are searched again with :data:`MAX_STEPS`. (8,192 ellipsoid grasps, 4
-#: hard fingers, 2 CPU devices, one run: 6 / 7 / 8 / 10 steps gave 2,368 / 2,696 / 2,401 / 1,816
-#: searches/s with :data:`FIRST_EXTRA_ITERATIONS` = 2.)
+#: 99th percentile 8, one in 4,096 23), two soft contacts 3 or 4, so the first pass stops at this
+#: many and the searches it leaves open go on in a second pass with :data:`MAX_STEPS`. (8,192
+#: ellipsoid grasps, 4 hard fingers, 2 CPU devices, one run: 6 / 7 / 8 / 10 steps gave 2,368 /
+#: 2,696 / 2,401 / 1,816 searches/s with :data:`FIRST_EXTRA_ITERATIONS` = 2, before the second pass
+#: resumed the first's brackets; after it, 6 against 7 in two runs: 1,840 / 2,184 and 1,686 / 2,291.)
 FIRST_STEPS = 7
 #: Interior-point iterations per step in the first pass, beyond ``_constants.first_pass_iterations``
 #: of the LP's size (14 for 4 hard fingers, 8 edges): a step whose LP is unfinished then proves
@@ -210,8 +211,8 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
 
     def value_and_slope(mu):
         # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
-        # negative without doubt; the function searched is mu (l* - thr), with the same root
-        # (``_scaled``).
+        # negative without doubt; the function searched is g = mu (l* - thr), with the same root
+        # and nearly straight (module docstring).
         (f, status), (df, _) = jax.jvp(lambda m: margin(points, normals, m, torsion), (mu,), (jnp.ones_like(mu),))
         return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED
 
@@ -283,7 +284,7 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         flat_lo = known & (flo < 0) & (dlo <= FLAT * dhi) & (dhi > 0)
         x = jnp.where(under | (flat_lo & (newton_hi <= lo)), lo + UNDERSHOOT * width, x)
         from_hi = (ok_hi | ok_lo) & ~from_lo & ~under & (stall < 2)
-        # Two steps that neither halved the bracket nor halved |l*|: bisect.
+        # Two steps that neither halved the bracket nor halved |g| on their side: bisect.
         x = jnp.where(stall >= 2, lo + 0.5 * width, x)
         # Kept half the accuracy from each end, in units of that end: a step from lo that lands
         # next to it then closes the bracket however far hi still is (with hi's unit it could not
