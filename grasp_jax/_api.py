@@ -392,6 +392,7 @@ def critical_friction(
         # The second pass resumes each open search from its last proven bracket
         # (``_friction._search``), rather than from [0, cap] again.
         retry = Retry((torsion, cap, *full), _search_open, _resume_search)
+        # (traced: a jnp array, a NumPy constant of this dtype is not canonical inside jit)
         start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
             np.zeros(batch + (_friction.RESUME,), points.dtype)
         mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,

@@ -227,10 +227,10 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         known_lo = True
     else:
         (spans,) = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents))
-        f_lo, bad_lo, frictionless, known_lo = jnp.asarray(-thr, dt), jnp.asarray(False), jnp.asarray(False), False
+        bad_lo, frictionless, known_lo = jnp.asarray(False), jnp.asarray(False), False
     found = spans & (f_hi > 0) & ~frictionless
     # (at mu = 0 the function searched, mu (l* - thr), is 0 whatever l*(0) is)
-    lower = (zero, jnp.minimum(zero * f_lo, 0.0), zero, jnp.asarray(known_lo))
+    lower = (zero, zero, zero, jnp.asarray(known_lo))
     upper = (jnp.asarray(cap, dt), f_hi, d_hi)
     failed = jnp.where(bad_lo, zero, -jnp.ones((), dt))
     if start is not None:
@@ -282,8 +282,9 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         # position and bisection took 20 steps and more on such grasps). The same where lo is on
         # such a piece and Newton from hi points below it.
         flat_lo = known & (flo < 0) & (dlo <= FLAT * dhi) & (dhi > 0)
-        x = jnp.where(under | (flat_lo & (newton_hi <= lo)), lo + UNDERSHOOT * width, x)
-        from_hi = (ok_hi | ok_lo) & ~from_lo & ~under & (stall < 2)
+        jump = under | (flat_lo & (newton_hi <= lo))
+        x = jnp.where(jump, lo + UNDERSHOOT * width, x)
+        from_hi = ok_hi & ~from_lo & ~jump & (stall < 2)  # x is Newton's step from hi
         # Two steps that neither halved the bracket nor halved |g| on their side: bisect.
         x = jnp.where(stall >= 2, lo + 0.5 * width, x)
         # Kept half the accuracy from each end, in units of that end: a step from lo that lands
