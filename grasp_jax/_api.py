@@ -13,7 +13,7 @@ import numpy as np
 
 from . import _closure, _friction
 from ._contact import CONTACTS, columns_per_contact
-from ._batch import Retry, map_grasps
+from ._batch import Retry, Staged, map_grasps
 from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterations, tolerances
 from ._lp import Status
 from ._precision import scope_for
@@ -97,6 +97,30 @@ def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_tes
                                  contact, torsion)
 
 
+def _torque_stage(points, normals, tangents, shared, *, num_edges, contact):
+    friction, iterations, restarts = shared
+    mu, torsion = friction
+    return _closure.torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
+
+
+def _quality_stage(points, normals, tangents, torques, shared, *, num_edges, contact):
+    friction, iterations, restarts = shared
+    mu, torsion = friction
+    return _closure.quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact,
+                                  torsion)
+
+
+def evaluation_function(points, num_edges: int, torque_test: str, contact: str, single: Callable):
+    """The single-grasp function of an evaluation, ``(points, normals, tangents, shared) ->``
+    :class:`GraspEvaluation` with ``shared = ((mu, torsion), iterations, restarts)``: in two
+    stages (``_batch.Staged``: the quality LP only where the torque LP leaves it needed) where
+    ``_closure.staged``, else ``single`` bound to the settings."""
+    if _closure.staged(points, torque_test):
+        return Staged(_bind(_torque_stage, num_edges=num_edges, contact=contact),
+                      _bind(_quality_stage, num_edges=num_edges, contact=contact))
+    return _bind(single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+
+
 def evaluate(
     points,
     normals,
@@ -143,7 +167,7 @@ def evaluate(
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
                                                                            torsion)
     contact, torsion = check_contact(contact, torsion, points.shape[-1])
-    fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+    fn = evaluation_function(points, num_edges, torque_test, contact, _evaluate_single)
     budget, retry = _passes(points, num_edges, iterations, contact)
     with scope:
         friction = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype))

@@ -90,28 +90,84 @@ def _retry_sizes(devices: tuple, chunk: int, block: int) -> tuple[int, int]:
     return local, local
 
 
+@dataclasses.dataclass(frozen=True)
+class Staged:
+    """A single-grasp function in two stages, the second run only on the grasps that need it.
+
+    Where a cheap first stage settles most grasps (``gj.evaluate``: the torque LP proves about half
+    of random grasps out of equilibrium, and their quality LP is not needed), a vmapped block
+    would still run the second stage for all of them. On the concrete path a chunk program runs
+    ``first`` over its grasps, gathers those with ``need``, and runs ``second`` on them only, in
+    full blocks; the traced path runs both on every grasp.
+
+    Attributes:
+        first: ``(*grasp, shared) -> (out, carry, need)``: the result of a grasp the first stage
+            settles, what the second stage needs from the first, and whether it needs it.
+        second: ``(*grasp, carry, shared) -> out``: the result, correct for *every* grasp (those
+            the first stage settled included, where it must equal the first stage's ``out``): a
+            block of gathered grasps is padded with others.
+    """
+
+    first: Callable
+    second: Callable
+
+    def __call__(self, *args):
+        *grasp, shared = args
+        _, carry, _ = self.first(*args)
+        return self.second(*grasp, carry, shared)
+
+
 def _blocked(fn: Callable, num_batched: int, size: int, block: int) -> Callable:
     """``vmap(fn)`` over ``size`` grasps, ``block`` at a time, of which the first ``count`` are
-    real: a loop over the blocks that hold real grasps; the others come out as zeros."""
+    real: a loop over the blocks that hold real grasps; the others come out as zeros. A
+    :class:`Staged` ``fn``: its first stage so, then its second over the gathered grasps that
+    need it."""
     block = min(block, size)
     in_axes = (0,) * num_batched + (None,)
+    staged = isinstance(fn, Staged)
     # One jitted object, so that its trace (for the output shapes, then in the loop) is reused.
-    scored = jax.jit(lambda xs, shared: jax.vmap(fn, in_axes=in_axes)(*xs, shared))
+    scored = jax.jit(lambda xs, shared: jax.vmap(fn.first if staged else fn, in_axes=in_axes)(*xs, shared))
+    if staged:
+        second = jax.jit(lambda xs, carry, shared: jax.vmap(fn.second, in_axes=in_axes[:-1] + (0, None))(
+            *xs, carry, shared))
+
+    def loop(count, run, out, take=None):
+        """``out`` with ``run`` on the blocks ``k`` of grasps ``take[k block : (k + 1) block]``
+        (consecutive grasps where ``take`` is ``None``), for the first ``count`` grasps."""
+
+        def body(k, out):
+            if take is None:
+                rows = None
+                pick = lambda a: jax.lax.dynamic_slice_in_dim(a, k * block, block)  # noqa: E731
+            else:
+                rows = jax.lax.dynamic_slice_in_dim(take, k * block, block)
+                pick = lambda a: a[rows]  # noqa: E731
+            res = run(pick)
+            if rows is None:
+                put = lambda o, r: jax.lax.dynamic_update_slice_in_dim(o, r, k * block, 0)  # noqa: E731
+            else:
+                put = lambda o, r: o.at[rows].set(r, unique_indices=True)  # noqa: E731
+            return jax.tree_util.tree_map(put, out, res)
+
+        blocks = (jnp.asarray(count, jnp.int32) + block - 1) // block
+        return jax.lax.fori_loop(0, blocks, body, out)
+
+    def zeros(shapes):
+        return jax.tree_util.tree_map(lambda s: jnp.zeros((size,) + s.shape[1:], s.dtype), shapes)
 
     def run(batched, shared, count):
         first = jax.tree_util.tree_map(lambda a: a[:block], batched)
-        shapes = jax.eval_shape(scored, first, shared)
-        out = jax.tree_util.tree_map(lambda s: jnp.zeros((size,) + s.shape[1:], s.dtype), shapes)
-
-        def body(k, out):
-            xs = jax.tree_util.tree_map(lambda a: jax.lax.dynamic_slice_in_dim(a, k * block, block), batched)
-            res = scored(xs, shared)
-            return jax.tree_util.tree_map(
-                lambda o, r: jax.lax.dynamic_update_slice_in_dim(o, r, k * block, 0), out, res
-            )
-
-        real_blocks = (jnp.asarray(count, jnp.int32) + block - 1) // block
-        return jax.lax.fori_loop(0, real_blocks, body, out)
+        out = loop(count, lambda pick: scored(jax.tree_util.tree_map(pick, batched), shared),
+                   zeros(jax.eval_shape(scored, first, shared)))
+        if not staged:
+            return out
+        out, carry, need = out
+        need = need & (jnp.arange(size) < count)
+        # The grasps that need the second stage first (a stable order), then the others; the
+        # last block is padded with those, which the second stage scores correctly too.
+        take = jnp.argsort(~need, stable=True).astype(jnp.int32)
+        return loop(jnp.sum(need, dtype=jnp.int32),
+                    lambda pick: second(*jax.tree_util.tree_map(pick, (batched, carry)), shared), out, take)
 
     return run
 
@@ -454,18 +510,28 @@ _OPTIONAL: dict = {}
 
 def _with_optional(fn: Callable, missing: tuple) -> Callable:
     """Adapt ``fn`` so that ``None`` entries of the batched tuple are passed as ``None`` (one
-    stable adapter per ``(fn, missing)``, so that compiled programs are reused)."""
+    stable adapter per ``(fn, missing)``, so that compiled programs are reused). A :class:`Staged`
+    ``fn`` has both stages adapted."""
     if not any(missing):
         return fn
     key = (fn, missing)
     adapted = _OPTIONAL.get(key)
     if adapted is None:
-
-        def adapted(*args):
-            *given, shared = args
-            it = iter(given)
-            full = [None if m else next(it) for m in missing]
-            return fn(*full, shared)
-
+        if isinstance(fn, Staged):
+            adapted = Staged(_adapt(fn.first, missing, 1), _adapt(fn.second, missing, 2))
+        else:
+            adapted = _adapt(fn, missing, 1)
         adapted = _OPTIONAL.setdefault(key, adapted)
+    return adapted
+
+
+def _adapt(fn: Callable, missing: tuple, trailing: int) -> Callable:
+    """``fn(*full, *rest)`` called as ``adapted(*given, *rest)``, where ``rest`` are the
+    ``trailing`` arguments after the grasp's arrays and ``given`` leaves out the missing ones."""
+
+    def adapted(*args):
+        given, rest = args[: len(args) - trailing], args[len(args) - trailing :]
+        it = iter(given)
+        return fn(*(None if m else next(it) for m in missing), *rest)
+
     return adapted

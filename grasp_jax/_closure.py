@@ -17,6 +17,8 @@ All functions here take one grasp; batching lives in ``_batch.py``.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -458,6 +460,138 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None, force
     return delta, status, jnp.where(bounded, y_bound, q_sol.y)
 
 
+class Torques(NamedTuple):
+    """The torque test of one 3D grasp (exact): what :func:`quality_stage` needs from
+    :func:`torque_stage`.
+
+    Attributes:
+        span: whether the torques of contacts 2..n about ``c_1`` positively span R^3.
+        margin: ``l*`` of the torque LP (0 where the torques are rank deficient, or the LP
+            unfinished but bounded).
+        direction: ``(3,)`` a torque direction ``t`` with ``t . tau >= -l*`` for every torque (the
+            certificate of a grasp that does not span), or a null vector where rank deficient.
+        status: ``int8`` :class:`Status` of the torque LP.
+        opposed: whether the torques lie strictly inside an open half-space (``l* < 0``, proved):
+            then only contact 1's own edges can balance, and ``delta* = -1`` exactly (hard
+            contacts), with no quality LP.
+    """
+
+    span: jax.Array
+    margin: jax.Array
+    direction: jax.Array
+    status: jax.Array
+    opposed: jax.Array
+
+
+def _torque_test(tau: jax.Array, t_sol: LPSolution, t_full, opposed) -> Torques:
+    """:class:`Torques` from a (polished) solve of the torque LP ``min_weight_lp(tau)``.
+    ``t_full``: whether it had the full budget; ``opposed``: what proves ``l* < 0`` (the caller
+    knows how precise its ``l*`` is)."""
+    tol = tolerances(tau.dtype)
+    full, null = _gram_rank3(tau)
+    t_margin = _min_weight_margin(tau, t_sol)
+    # Unfinished after the full budget: the dual of the best iterate may still prove that the
+    # torques do not span, by a direction u with u . tau >= 0 for every torque (then l* <= 0).
+    t_dual = _min_weight_certificate(tau, t_sol)
+    u = safe_normalize(t_dual)
+    u_slack = 16.0 * jnp.finfo(tau.dtype).eps * jnp.max(jnp.abs(tau))
+    t_bounded = t_full & (t_sol.status == Status.NOT_CONVERGED) & (jnp.min(tau @ u) >= -u_slack)
+    t_margin = jnp.where(t_bounded, 0.0, t_margin)
+    span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
+    t_cert = jnp.where(full & ((t_sol.status != Status.NOT_CONVERGED) | t_bounded), t_dual, null)
+    t_status = jnp.where(full, jnp.where(t_bounded, Status.BOUNDED, t_sol.status), Status.OPTIMAL).astype(jnp.int8)
+    return Torques(span, jnp.where(full, t_margin, 0.0), t_cert, t_status, full & opposed)
+
+
+def _evaluation(points, tau_dim: int, delta, q_status, q_dual, iterations, torque_span, t_margin, t_cert, t_status
+                ) -> GraspEvaluation:
+    """The :class:`GraspEvaluation` of one grasp from the outcomes of its two tests."""
+    tol = tolerances(points.dtype)
+    d = points.shape[-1]
+    q_ok = q_status == Status.OPTIMAL
+    bounded = q_status == Status.BOUNDED
+    equilibrium = q_ok & (delta > tol.margin)
+    quality = jnp.where(equilibrium, delta, 0.0)
+    force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
+
+    # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges, from
+    # the quality LP's dual where it has one (optimal, or a bounding best iterate).
+    has_dual = q_ok | bounded
+    t_q = q_dual[d : d + tau_dim]
+    eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau_dim, points.dtype)]) - _certificate_from_torque(
+        points, t_q / _arm_scale(points)
+    )
+    cert = jnp.where(~torque_span, _certificate_from_torque(points, t_cert), eq_cert)
+    cert = jnp.where(force_closure | ~has_dual, 0.0, safe_normalize(cert))
+
+    return GraspEvaluation(
+        force_closure=force_closure,
+        quality=quality,
+        equilibrium=equilibrium,
+        torque_span=torque_span,
+        delta=delta,
+        torque_margin=t_margin.astype(points.dtype),
+        certificate=cert,
+        quality_status=q_status,
+        torque_status=t_status,
+        iterations=iterations,
+    )
+
+
+def staged(points: jax.Array, torque_test: str = "exact") -> bool:
+    """Whether :func:`evaluate_one` of grasps like ``points`` runs as :func:`torque_stage` then
+    :func:`quality_stage`: 3D, the exact torque test, float64 (float32's crossover polishes both
+    LPs together, ``_polish_exact``)."""
+    return points.shape[-1] == 3 and torque_test == "exact" and not tolerances(points.dtype).crossover
+
+
+def _torque_columns(points, normals, mu, num_edges, tangents, contact, torsion) -> jax.Array:
+    """``(K, 3)`` the torques about ``c_1`` of the torque test (the columns of contacts 2..n)."""
+    normals = safe_normalize(normals)
+    cols = about_first(points, normals, cone_edges(normals, mu, num_edges, tangents), contact, torsion)
+    return cols.torque[cols.fixed:]
+
+
+def torque_stage(points, normals, mu, num_edges: int, tangents=None, iterations=None, restarts=None,
+                 contact: str = "hard", torsion=0.0) -> tuple[GraspEvaluation, Torques, jax.Array]:
+    """The first stage of :func:`evaluate_one` (where :func:`staged`): the torque LP alone.
+
+    About half of random grasps have all torques of contacts 2..n about ``c_1`` strictly inside an
+    open half-space (``l* < -margin``, ``Torques.opposed``). Then no combination of those contacts'
+    edges has zero torque, only contact 1's own edges balance, the quality LP's optimum is
+    ``delta* = -1`` exactly (hard contacts, whose edges are ``z_1 + mu t``), and the certificate
+    comes from the torque LP: the evaluation is complete without the quality LP. (Soft contacts
+    never get there: contact 1's paired columns have opposite torsions.)
+
+    Returns:
+        ``(evaluation, torques, need)``: the evaluation where ``need`` is false, the torque test
+        for :func:`quality_stage`, and whether the quality LP is needed.
+    """
+    tol = tolerances(points.dtype)
+    tau = _torque_columns(points, normals, mu, num_edges, tangents, contact, torsion)
+    t_lp = min_weight_lp(tau)
+    (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
+    margin = _min_weight_margin(tau, t_sol)
+    opposed = (contact == "hard") & (t_sol.status == Status.OPTIMAL) & (margin < -tol.margin)
+    torques = _torque_test(tau, t_sol, _full_budget(t_lp, iterations), opposed)
+    rows = 3 + 3 + 1
+    out = _evaluation(points, 3, -jnp.ones((), points.dtype), jnp.asarray(Status.OPTIMAL, jnp.int8),
+                      jnp.zeros(rows, points.dtype), jnp.zeros((), jnp.int32), *torques[:4])
+    return out, torques, ~torques.opposed
+
+
+def quality_stage(points, normals, mu, num_edges: int, torques: Torques, tangents=None, iterations=None,
+                  restarts=None, contact: str = "hard", torsion=0.0) -> GraspEvaluation:
+    """The second stage of :func:`evaluate_one` (where :func:`staged`): the quality LP, and the
+    evaluation from it and the torque test of :func:`torque_stage`. Correct for every grasp: where
+    the torques are opposed it reports what the first stage does (``delta = -1``)."""
+    q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+    (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
+    delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, forced=torques.opposed)
+    iters = jnp.where(torques.opposed, 0, q_sol.iterations)
+    return _evaluation(points, 3, delta, q_status, q_dual, iters, *torques[:4])
+
+
 def evaluate_one(
     points: jax.Array,
     normals: jax.Array,
@@ -485,9 +619,13 @@ def evaluate_one(
     """
     tol = tolerances(points.dtype)
     d = points.shape[-1]
+    if staged(points, torque_test):
+        _, torques, _ = torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
+        return quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact, torsion)
     q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     tau = cols.torque[cols.fixed:]
     if d == 3 and torque_test == "exact":
+        # float32: both LPs, then one crossover for both (``_polish_exact``).
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
         # stops then. The quality LP is feasible by construction.
@@ -498,21 +636,8 @@ def evaluate_one(
         q_polished, t_polished = _polish_exact(
             q_lp, t_lp, q_sol, t_sol, (_pivots(tol, q_full), _pivots(tol, t_full)), q_full
         )
-        t_sol = t_polished[0]
         forced = _open_half_space(t_polished)
-        full, null = _gram_rank3(tau)
-        t_margin = _min_weight_margin(tau, t_sol)
-        # Unfinished after the full budget: the dual of the best iterate may still prove that the
-        # torques do not span, by a direction u with u . tau >= 0 for every torque (then l* <= 0).
-        t_dual = _min_weight_certificate(tau, t_sol)
-        u = safe_normalize(t_dual)
-        u_slack = 16.0 * jnp.finfo(tau.dtype).eps * jnp.max(jnp.abs(tau))
-        t_bounded = t_full & (t_sol.status == Status.NOT_CONVERGED) & (jnp.min(tau @ u) >= -u_slack)
-        t_margin = jnp.where(t_bounded, 0.0, t_margin)
-        torque_span = full & (t_sol.status == Status.OPTIMAL) & (t_margin > tol.margin)
-        t_cert = jnp.where(full & ((t_sol.status != Status.NOT_CONVERGED) | t_bounded), t_dual, null)
-        t_status = jnp.where(full, jnp.where(t_bounded, Status.BOUNDED, t_sol.status), Status.OPTIMAL).astype(jnp.int8)
-        t_margin = jnp.where(full, t_margin, 0.0)
+        torque_span, t_margin, t_cert, t_status, _ = _torque_test(tau, t_polished[0], t_full, forced)
     else:
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         q_polished, forced = None, False
@@ -533,34 +658,8 @@ def evaluate_one(
     # Unfinished after the full budget (in float32 about 1 quality LP in 1,000 random grasps): the
     # dual of its best iterate may still prove delta* < 0, i.e. no equilibrium, Q = 0 exactly.
     delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, q_polished, forced)
-    q_ok = q_status == Status.OPTIMAL
-    bounded = q_status == Status.BOUNDED
-    equilibrium = q_ok & (delta > tol.margin)
-    quality = jnp.where(equilibrium, delta, 0.0)
-    force_closure = equilibrium & torque_span & (t_status != Status.NOT_CONVERGED)
-
-    # Certificate: a wrench direction u (about the origin) with u . w_ij >= 0 for all edges, from
-    # the quality LP's dual where it has one (optimal, or a bounding best iterate).
-    has_dual = q_ok | bounded
-    t_q = q_dual[d : d + tau.shape[-1]]
-    eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau.shape[-1], points.dtype)]) - _certificate_from_torque(
-        points, t_q / _arm_scale(points)
-    )
-    cert = jnp.where(~torque_span, _certificate_from_torque(points, t_cert), eq_cert)
-    cert = jnp.where(force_closure | ~has_dual, 0.0, safe_normalize(cert))
-
-    return GraspEvaluation(
-        force_closure=force_closure,
-        quality=quality,
-        equilibrium=equilibrium,
-        torque_span=torque_span,
-        delta=delta,
-        torque_margin=t_margin.astype(points.dtype),
-        certificate=cert,
-        quality_status=q_status,
-        torque_status=t_status,
-        iterations=q_sol.iterations,
-    )
+    return _evaluation(points, tau.shape[-1], delta, q_status, q_dual, q_sol.iterations, torque_span, t_margin,
+                       t_cert, t_status)
 
 
 #: A grasp counts as settled out of equilibrium (:func:`out_of_equilibrium`) when weak duality

@@ -154,7 +154,12 @@ def test_statuses_and_invariants(cases, key):
     assert np.all(ev.delta <= QMAX + 1e-9) and np.all(ev.delta >= -1 - 1e-6)  # delta = -1 is always feasible
     np.testing.assert_array_equal(ev.quality, np.where(ev.equilibrium, ev.delta, 0.0))
     np.testing.assert_array_equal(ev.force_closure, ev.equilibrium & ev.torque_span)
-    assert np.all(ev.iterations > 0)
+    # The quality LP is solved unless the torque LP proves the torques opposed (l* < -margin,
+    # hard contacts, float64): then delta = -1 exactly, with no iteration (_closure.torque_stage).
+    opposed = (ev.torque_status == gj.Status.OPTIMAL) & (ev.torque_margin < -1e-7) if c.d == 3 else np.zeros(len(c), bool)
+    assert np.all(ev.iterations[~opposed] > 0)
+    np.testing.assert_array_equal(ev.iterations[opposed], 0)
+    np.testing.assert_array_equal(ev.delta[opposed], -1.0)
 
 
 @pytest.mark.parametrize("key", KEYS, ids=_ids(KEYS))
