@@ -42,7 +42,9 @@ class GraspEvaluation:
         torque_status: ``B`` int8 status of the torque LP (``OPTIMAL`` where none was needed;
             ``BOUNDED``: unfinished, but a direction ``u`` with ``u . tau >= 0`` for every torque
             proves that they do not span, margin reported 0; float32 only).
-        iterations: ``B`` int32. Interior-point iterations the quality LP took.
+        iterations: ``B`` int32. Interior-point iterations the quality LP took; 0 where it was not
+            solved (3D, exact torque test, float64: the torque LP proved the torques of contacts 2..n
+            strictly inside a half-space, so that ``delta = -1`` exactly, see ``_closure.torque_stage``).
     """
 
     force_closure: jax.Array

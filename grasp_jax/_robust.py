@@ -44,7 +44,7 @@ import numpy as np
 
 from . import _closure
 from ._api import _bind, _check_common, _passes, _unfinished, check_contact
-from ._batch import Retry, map_grasps, pad_rows
+from ._batch import Retry, Staged, map_grasps, pad_rows
 from ._cones import safe_normalize, tangent_frame
 from ._constants import DEFAULT_NUM_EDGES
 from ._lp import Status
@@ -342,6 +342,17 @@ def _evaluate_single(points, normals, tangents, mu, shared, *, num_edges, torque
     torsion, iterations, restarts = shared  # traced: every pass runs one compiled program
     return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
                                  contact, torsion)
+
+
+def _torque_stage(points, normals, tangents, mu, shared, *, num_edges, contact):
+    torsion, iterations, restarts = shared
+    return _closure.torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
+
+
+def _quality_stage(points, normals, tangents, mu, torques, shared, *, num_edges, contact):
+    torsion, iterations, restarts = shared
+    return _closure.quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact,
+                                  torsion)
 
 
 def _dual_single(points, normals, tangents, mu, shared, *, num_edges, contact):
@@ -649,7 +660,11 @@ def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque
     """
     dtype, total, samples = perturber.dtype, perturber.total, perturber.samples
     num_edges = perturber.num_edges
-    evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+    if _closure.staged(perturber.points, torque_test):  # as gj.evaluate: the quality LP where needed
+        evaluate_fn = Staged(_bind(_torque_stage, num_edges=num_edges, contact=contact),
+                             _bind(_quality_stage, num_edges=num_edges, contact=contact))
+    else:
+        evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
     weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
     settled_fn = _bind(_settled_single, num_edges=num_edges, contact=contact)
     budget, retry = _passes(perturber.points, num_edges, None, contact)

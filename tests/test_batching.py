@@ -222,6 +222,74 @@ def test_retry_passes_in_turn():
     np.testing.assert_array_equal(np.asarray(traced), x[:, 0])
 
 
+def _toy_staged():
+    """A two-stage function: the first settles ``x <= 0.5`` at -1 and hands ``3 x`` on; the second
+    gives ``3 x + x`` where needed and -1 elsewhere (as the first: correct for every grasp)."""
+
+    def first(x, missing, shared):
+        assert missing is None
+        return -jnp.ones((), x.dtype), 3.0 * x[0], x[0] > 0.5
+
+    def second(x, missing, carry, shared):
+        assert missing is None
+        (offset,) = shared
+        return jnp.where(x[0] > 0.5, carry + x[0] + offset, -1.0)
+
+    return _batch.Staged(first, second)
+
+
+def test_staged_second_stage_on_gathered_grasps():
+    """``_batch.Staged``: the concrete path (the second stage on the gathered grasps that need it,
+    chunks with padding, a missing input, a retry pass) equals the traced path (both stages on
+    every grasp) and the expected values."""
+    fn = _toy_staged()
+    x = np.random.default_rng(3).uniform(size=(5000, 1))
+    expected = np.where(x[:, 0] > 0.5, 4.0 * x[:, 0], -1.0)
+    out = _batch.map_grasps(fn, (x, None), (np.float64(0.0),), (5000,), chunk=4096)
+    np.testing.assert_array_equal(np.asarray(out), expected)
+    traced = jax.jit(lambda x: _batch.map_grasps(fn, (x, None), (np.float64(0.0),), (5000,)))(x)
+    np.testing.assert_array_equal(np.asarray(traced), expected)
+    # A retry pass re-runs both stages on what the first pass left "unfinished" (here x > 0.9,
+    # offset 1 in the first pass, 0 in the retry).
+    retry = _batch.Retry((np.float64(0.0),), lambda out: np.asarray(out) > 4.0 * 0.9 + 1.0)
+    out = _batch.map_grasps(fn, (x, None), (np.float64(1.0),), (5000,), chunk=4096, retry=retry)
+    again = x[:, 0] > 0.9
+    np.testing.assert_array_equal(np.asarray(out)[again], expected[again])
+    np.testing.assert_array_equal(np.asarray(out)[~again], np.where(x[~again, 0] > 0.5, expected[~again] + 1.0, -1.0))
+
+
+def test_staged_evaluate_equals_one_stage():
+    """``gj.evaluate`` (float64, 3D, exact: ``_closure.torque_stage`` then ``quality_stage`` on
+    the grasps that need it, the quality LP skipped where the torques are opposed) against the
+    traced path: the same verdicts, certificates and margins; ``delta`` exactly -1 where the
+    quality LP was skipped, as HiGHS finds."""
+    p, n = _batch_of(600, seed=12)
+    ev = gj.evaluate(p, n, mu=MU)
+    skipped = np.asarray(ev.iterations) == 0
+    assert 0.2 < skipped.mean() < 0.9
+    # The traced path runs both stages on every grasp.
+    one = jax.jit(jax.vmap(lambda a, b: gj._closure.evaluate_one(a, b, MU, 8)))(p, n)
+    for name in ("force_closure", "equilibrium", "torque_span", "quality_status", "torque_status"):
+        np.testing.assert_array_equal(np.asarray(getattr(ev, name)), np.asarray(getattr(one, name)), err_msg=name)
+    for name in ("quality", "delta", "torque_margin", "certificate"):
+        np.testing.assert_allclose(np.asarray(getattr(ev, name)), np.asarray(getattr(one, name)), atol=1e-8,
+                                   err_msg=name)
+    np.testing.assert_array_equal(np.asarray(ev.delta)[skipped], -1.0)
+    # HiGHS on the signed quality LP (delta free) of some skipped grasps: delta* = -1.
+    from scipy.optimize import linprog
+
+    for k in np.flatnonzero(skipped)[:20]:
+        W = reference.wrenches(p[k], n[k], MU, 8, p[k][0], 1.0).T
+        z1 = -n[k][0] / np.linalg.norm(n[k][0])
+        A = np.vstack([np.hstack([W, np.concatenate([z1, np.zeros(3)])[:, None]]),
+                       np.concatenate([np.ones(W.shape[1]), [0.0]])])
+        b = np.zeros(7)
+        b[-1] = 1.0
+        res = linprog(np.eye(W.shape[1] + 1)[-1] * -1.0, A_eq=A, b_eq=b,
+                      bounds=[(0, None)] * W.shape[1] + [(None, None)], method="highs")
+        assert res.status == 0 and abs(-res.fun + 1.0) < 1e-9, (k, res.fun)
+
+
 def test_one_compilation_per_grasp_shape(monkeypatch, caplog):
     """Batches of 1 to 100,000 grasps of one shape reuse the same compiled programs: one for
     ``quality``, one for ``evaluate`` (its first pass and its retry pass share it), each traced once
