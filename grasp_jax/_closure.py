@@ -12,6 +12,12 @@ min-weight LP in R^3 plus a rank check (eq. 15 only checks each axis separately,
 in 3D; it is kept as ``torque_test="paper"``). In 2D, (2) means the scalar torques take both signs,
 which is exactly eq. (21).
 
+When the torques of (2) lie strictly inside an open half-space (a torque LP margin ``l* < 0``;
+about half of random grasps), only contact 1's own edges have zero torque about ``c_1``, and the
+quality LP's optimum is ``delta* = -1`` (hard contacts): :func:`evaluate_one` then needs no quality
+LP, and runs (float64, 3D, exact) as two stages, :func:`torque_stage` and :func:`quality_stage`, so
+that the batched evaluation (``_batch.Staged``) solves the quality LP only where it is needed.
+
 All functions here take one grasp; batching lives in ``_batch.py``.
 """
 
