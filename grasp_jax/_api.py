@@ -355,6 +355,22 @@ def _critical_single(points, normals, tangents, start, shared, *, num_edges, con
                                            steps, start)
 
 
+def _critical_first(points, normals, tangents, start, shared, *, num_edges, contact):
+    """The first stage of a search pass (``_batch.Staged``): ``steps`` steps, then the searches
+    still open go on, gathered, for ``more`` steps (:func:`_critical_more`)."""
+    torsion, cap, steps, more, iterations = shared
+    out = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
+                                          steps, start)
+    return out, out[2], (out[1] == _friction.FrictionStatus.NOT_CONVERGED) & (more > 0)
+
+
+def _critical_more(points, normals, tangents, start, carry, shared, *, num_edges, contact):
+    """The second stage: resumed from the first's state (a search it closed ends where it was)."""
+    torsion, cap, steps, more, iterations = shared
+    return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
+                                           more, carry)
+
+
 def _resume_search(out, batched):
     """The second pass of :func:`critical_friction` goes on from the first pass's brackets."""
     return (*batched[:-1], out[2])
@@ -402,20 +418,30 @@ def critical_friction(
     if is_traced(cap) and not is_traced(points):
         points, normals, tangents = _as_traced(points, normals, tangents)
         scope = scope_for(points.dtype, traced=True)
-    fn = _bind(_critical_single, num_edges=num_edges, contact=contact)
+    traced = is_traced(points)
+    if traced:
+        fn = _bind(_critical_single, num_edges=num_edges, contact=contact)
+    else:
+        fn = Staged(_bind(_critical_first, num_edges=num_edges, contact=contact),
+                    _bind(_critical_more, num_edges=num_edges, contact=contact))
     with scope:
         torsion, cap = jnp.asarray(torsion, points.dtype), jnp.asarray(cap, points.dtype)
         # A first pass of few steps, each with a short interior-point budget; the searches it
         # leaves open again with every step and the full budget (``_friction.FIRST_STEPS``,
         # ``FIRST_EXTRA_ITERATIONS``). (No crossover: ``_friction.CROSSOVER``.)
         columns = _friction.min_weight_columns(points.shape[-2], points.shape[-1], contact, num_edges)
-        full = (np.int32(_friction.MAX_STEPS), np.int32(default_iterations(columns)))
-        traced = is_traced(points)
-        short = min(int(full[1]), first_pass_iterations(columns) + _friction.FIRST_EXTRA_ITERATIONS)
-        first = full if traced else (np.int32(_friction.FIRST_STEPS), np.int32(short))
-        # The second pass resumes each open search from its last proven bracket
-        # (``_friction._search``), rather than from [0, cap] again.
-        retry = Retry((torsion, cap, *full), _search_open, _resume_search)
+        iterations = np.int32(default_iterations(columns))
+        short = min(int(iterations), first_pass_iterations(columns) + _friction.FIRST_EXTRA_ITERATIONS)
+        # The first pass in two stages: FIRST_STAGE_STEPS steps for every grasp, then the rest of
+        # FIRST_STEPS for the searches still open, gathered into full blocks (a block no longer
+        # waits for its slowest search for all FIRST_STEPS steps). The second pass resumes each
+        # search still open from its last proven bracket (``_friction._search``), with every step
+        # and the full budget, in one stage.
+        more = _friction.FIRST_STEPS - _friction.FIRST_STAGE_STEPS
+        first = (np.int32(_friction.MAX_STEPS), iterations) if traced else \
+            (np.int32(_friction.FIRST_STAGE_STEPS), np.int32(more), np.int32(short))
+        retry = Retry((torsion, cap, np.int32(_friction.MAX_STEPS), np.int32(0), iterations), _search_open,
+                      _resume_search)
         # (traced: a jnp array, a NumPy constant of this dtype is not canonical inside jit)
         start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
             np.zeros(batch + (_friction.RESUME,), points.dtype)
