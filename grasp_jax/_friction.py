@@ -38,9 +38,11 @@ up to 2e-8) on 1,200 random grasps (box and cylinder; hard 3 and 4 fingers, soft
 unit of ``mu`` at the root (an error of 1e-8 in ``l*`` is then 1e-5 in ``mu*``).
 
 A vmapped search runs until the slowest grasp of its block is done; a batch is first searched
-with :data:`FIRST_STEPS` steps and the searches left open go on with :data:`MAX_STEPS` and the full
-interior-point budget (``_batch.Retry``), from the last bracket their first pass proved (the state
-``_search`` ends with and resumes from), not from ``[0, cap]``. Two safeguards keep the slowest
+with :data:`FIRST_STEPS` steps (:data:`FIRST_STAGE_STEPS` for every grasp, then the rest for the
+searches still open, gathered into full blocks: ``_batch.Staged``) and the searches left open go on
+with :data:`MAX_STEPS` and the full interior-point budget (``_batch.Retry``), from the last bracket
+their first pass proved (the state ``_search`` ends with and resumes from), not from ``[0, cap]``,
+and with no LP at the cap. Two safeguards keep the slowest
 searches short, since every grasp of a block waits for them: where ``l*`` is flat at 0 just below
 ``mu*`` (a Newton step from ``hi`` lands there and says nothing new), a short step up from ``lo``
 (:data:`UNDERSHOOT`); and bisection after two steps that halved neither the bracket nor ``|g|`` on
