@@ -10,7 +10,8 @@ Two paths:
   devices. A batch of any size, 1 or 10^7 grasps, runs the same program: one compilation per
   grasp shape, dtype and device set (a :class:`Retry` pass runs it again), kept between processes by
   the persistent cache of :mod:`grasp_jax._cache`. Memory stays
-  flat however large the batch.
+  flat however large the batch. A :class:`Staged` function's second stage runs, inside the same
+  program, only on the grasps its first stage leaves in need of it, gathered into full blocks.
 
 Devices. Several local devices (on a CPU: ``XLA_FLAGS=--xla_force_host_platform_device_count``)
 each score their slice of every chunk; the programs use no collective, and each chunk's result
