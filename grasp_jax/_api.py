@@ -443,8 +443,8 @@ def critical_friction(
         retry = Retry((torsion, cap, np.int32(_friction.MAX_STEPS), np.int32(0), iterations), _search_open,
                       _resume_search)
         # (traced: a jnp array, a NumPy constant of this dtype is not canonical inside jit)
-        start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
-            np.zeros(batch + (_friction.RESUME,), points.dtype)
+        size = _friction.resume_size(points.shape[-2], points.shape[-1], contact, num_edges)
+        start = jnp.zeros(batch + (size,), points.dtype) if traced else np.zeros(batch + (size,), points.dtype)
         mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,
                                    progress=progress, retry=None if traced else retry)
     if not is_traced(status):

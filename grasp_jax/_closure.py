@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
 from ._crossover import SENSITIVE, as_solution, polish, sensitivity, stacked
-from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve
+from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve, warm_point
 from ._result import GraspEvaluation
 from ._contact import Columns, columns, wrench_columns
 from ._wrench import cross
@@ -739,8 +739,8 @@ def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, ta
                             iterations)
 
 
-def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None, pivots=None
-                     ) -> tuple[jax.Array, jax.Array]:
+def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None, pivots=None,
+                     warm=None, weight=0.0, solution: bool = False) -> tuple[jax.Array, ...]:
     """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
 
     ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
@@ -750,9 +750,12 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     ``full``: whether the vectors span R^D, where the caller knows it (no rank test here).
     ``pivots``: crossover pivots to a certified vertex (default ``tolerances(dtype).crossover``:
     none in float64, where the interior-point value is accurate to about 1e-8).
+    ``warm, weight``: a warm start (:func:`grasp_jax._lp.solve`); ``solution``: also return the
+    solution's :func:`grasp_jax._lp.warm_point`, to warm-start a nearby LP from.
     """
     lp = min_weight_lp(vectors)
-    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort)
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort,
+                   warm=None if warm is None else (warm,), weight=weight)
     if not best_effort:
         if pivots is None:
             pivots = _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations))
@@ -763,4 +766,5 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     K = vectors.shape[0]
     value = 1.0 / K - optimal_value(lp, sol)
     margin = jnp.where(has_value(sol), value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))
-    return jnp.where(full, margin, 0.0), sol.status
+    out = (jnp.where(full, margin, 0.0), sol.status)
+    return out + (warm_point(lp, sol),) if solution else out

@@ -49,6 +49,11 @@ searches short, since every grasp of a block waits for them: where ``l*`` is fla
 the side they fell on. (Random 4-finger grasps: the slowest of a block of 256 took 20 steps on
 average before them, 12 with them; one search in 4,096 still takes 23.)
 
+Each step's LP starts warm (``_lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
+step's solution, weighted by how far ``mu`` moved (:data:`WARM`); a Newton step that moves ``mu``
+by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second pass
+resumes from that solution too (it is part of the state).
+
 Derivatives come from the implicit function theorem on ``l*(mu*, points, normals, torsion) = 0``:
 ``d mu* = -(d l*/d theta) / (d l*/d mu)``, with the envelope derivatives of the LP (no iteration
 of the root finder is differentiated).
@@ -172,12 +177,14 @@ def threshold(dtype) -> float:
     return 10.0 * tolerances(dtype).lp
 
 
-def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations):
+def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations, warm=None, weight=0.0):
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
     (the caller checks it once: it does not depend on ``mu > 0``). The interior-point value, good
-    to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`)."""
+    to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`). With ``warm``
+    (``_lp.warm_point`` of a nearby step's LP), ``(l*, status, warm point)`` from that warm start."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
-    return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER)
+    return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER, warm=warm, weight=weight,
+                            solution=warm is not None)
 
 
 def _frictionless_possible(n: int, d: int, contact: str) -> bool:
@@ -187,15 +194,39 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
     return distinct >= (6 if d == 3 else 3) + 1
 
 
-#: Length of the state a search ends with and another resumes from (:func:`_search`): whether it
-#: is a bracket at all, the last lower end an LP proved (``mu``, ``g``, ``g'``, whether ``g`` is
-#: known there), the upper end (``mu``, ``g``, ``g'``).
-RESUME = 8
+#: Length of the head of the state a search ends with and another resumes from (:func:`_search`):
+#: whether it is a bracket at all, the last lower end an LP proved (``mu``, ``g``, ``g'``, whether
+#: ``g`` is known there), the upper end (``mu``, ``g``, ``g'``), and the friction of the last LP
+#: solved; the min-weight LP's solution there ``(x, y, s)`` follows (:func:`resume_size`).
+RESUME = 9
+
+#: Warm starts (Skajaa, Andersen and Ye 2013; ``_lp.solve(warm=...)``): each step's LP starts from
+#: ``w`` times the last step's solution plus ``1 - w`` times the standard start, ``w`` by the
+#: relative move of ``mu`` from that step: below ``WARM[0]``, ``WARM[2]``; below ``WARM[1]``,
+#: ``WARM[3]``; else ``WARM[4]``.
+WARM = (0.03, 0.3, 0.999, 0.99, 0.9)
 
 
-def fresh(dtype) -> jax.Array:
-    """``(RESUME,)`` the state that starts a search from nothing (:func:`_search`)."""
-    return jnp.zeros(RESUME, dtype)
+def _weight(r):
+    a, b, w1, w2, w3 = WARM
+    return jnp.where(r < a, w1, jnp.where(r < b, w2, w3))
+
+
+def _lp_shape(n: int, d: int, contact: str, num_edges: int) -> tuple[int, int]:
+    """``(rows, columns)`` of the min-weight LP of a grasp of ``n`` contacts in ``d`` dimensions."""
+    k = n * (2 if d == 2 else columns_per_contact(contact, num_edges))
+    return min_weight_lp(jnp.zeros((k, d + (1 if d == 2 else 3)))).A.shape
+
+
+def resume_size(n: int, d: int, contact: str, num_edges: int) -> int:
+    """Length of a search's state (:func:`_search`): :data:`RESUME` and the LP's ``(x, y, s)``."""
+    rows, cols = _lp_shape(n, d, contact, num_edges)
+    return RESUME + 2 * cols + rows
+
+
+def fresh(dtype, size: int) -> jax.Array:
+    """``(size,)`` the state that starts a search from nothing (:func:`_search`)."""
+    return jnp.zeros(size, dtype)
 
 
 def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_edges, contact, tangents,
@@ -216,20 +247,24 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
     n, d = points.shape
     margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
 
-    def value_and_slope(mu, budget=iterations):
+    rows, cols = _lp_shape(n, d, contact, num_edges)
+    cold = (jnp.ones(cols, dt), jnp.zeros(rows, dt), jnp.ones(cols, dt))  # weight 0: any point
+
+    def value_and_slope(mu, budget=iterations, warm=cold, weight=0.0):
         # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
         # negative without doubt; the function searched is g = mu (l* - thr), with the same root
-        # and nearly straight (module docstring).
-        (f, status), (df, _) = jax.jvp(lambda m: margin(points, normals, m, torsion, iterations=budget), (mu,),
-                                       (jnp.ones_like(mu),))
-        return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED
+        # and nearly straight (module docstring). Also the LP's warm point, to start the next from.
+        (f, status, point), (df, _, _) = jax.jvp(
+            lambda m: margin(points, normals, m, torsion, iterations=budget, warm=warm, weight=weight), (mu,),
+            (jnp.ones_like(mu),))
+        return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED, point
 
     zero = jnp.zeros((), dt)
     # A resumed search knows its ends: the LPs at the cap (and at 0) get no iteration (under vmap
     # they would otherwise cost a full LP for every resumed grasp), and their values are not used.
     resume = jnp.asarray(False) if start is None else start[0] > 0
     budget = jnp.where(resume, 0, iterations) if start is not None else iterations
-    f_hi, d_hi, bad_hi = value_and_slope(cap, budget)
+    f_hi, d_hi, bad_hi, sol_hi = value_and_slope(cap, budget)
     if _frictionless_possible(n, d, contact):
         spans, spans_lo = _spans(_wrenches(points, normals, cap, num_edges, contact, torsion, tangents),
                                  _wrenches(points, normals, zero, num_edges, contact, torsion, tangents))
@@ -257,8 +292,13 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
     state = (
         jnp.zeros((), jnp.int32), lower[0], upper[0], lower[1], upper[1], lower[2], upper[2],
         lower[3], jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), failed, lower,
-        jnp.zeros((), bool),
+        jnp.zeros((), bool), sol_hi, jnp.asarray(cap, dt),
     )
+    if start is not None:
+        tail = start[RESUME:]
+        warm0 = (tail[:cols], tail[cols:cols + rows], tail[cols + rows:])
+        state = state[:-2] + (tuple(jnp.where(resume, v, old) for v, old in zip(warm0, sol_hi)),
+                              jnp.where(resume, start[RESUME - 1], cap))
 
     def _closed(lo, hi):
         # relative accuracy, or mu* below atol: a grasp that holds at every mu > 0 but not at 0
@@ -270,7 +310,7 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         return found & (k < steps) & ~_closed(lo, hi)
 
     def body(s):
-        k, lo, hi, flo, fhi, dlo, dhi, known, stall, side, failed, proven, under = s
+        k, lo, hi, flo, fhi, dlo, dhi, known, stall, side, failed, proven, under, warm, last = s
         width = hi - lo
         inside = lambda x: (x > lo) & (x < hi) & jnp.isfinite(x)  # noqa: E731
         newton_hi = hi - fhi / jnp.where(dhi > 0, dhi, 1.0)
@@ -302,7 +342,7 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         # next to it then closes the bracket however far hi still is (with hi's unit it could not
         # while hi was the cap, and cost one more step).
         x = jnp.clip(x, lo + 0.5 * rtol * jnp.where(lo > 0, lo, hi), hi - 0.5 * rtol * hi)
-        fx, dx, bad_x = value_and_slope(x)
+        fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=_weight(jnp.abs(x - last) / last))
         # An LP that did not converge (near the friction at which the LP turns infeasible, say)
         # proves nothing: x is not taken as force-closure, and becomes a lower end on credit
         # (``failed``); mu* = hi stays a friction at which a converged LP says force-closure.
@@ -324,12 +364,13 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         proven2 = tuple(jnp.where(below, v, old) for v, old in zip((x, fx, dx, jnp.ones((), bool)), proven))
         under2 = from_hi & below & (dx <= FLAT * dhi)
         return (k + 1, lo2, hi2, flo2, fhi2, dlo2, dhi2, known | ~holds, stall2, side2, failed2, proven2,
-                under2)
+                under2, sol_x, x)
 
-    k, lo, hi, _, f_hi, _, d_hi, *_, failed, proven, _ = jax.lax.while_loop(cond, body, state)
+    k, lo, hi, _, f_hi, _, d_hi, *_, failed, proven, _, warm, last = jax.lax.while_loop(cond, body, state)
     # a lower end that only an LP failure put there: mu* = hi is an upper bound
     converged = _closed(lo, hi) & (failed < lo)
-    end = jnp.stack([found.astype(dt), proven[0], proven[1], proven[2], proven[3].astype(dt), hi, f_hi, d_hi])
+    end = jnp.concatenate([jnp.stack([found.astype(dt), proven[0], proven[1], proven[2], proven[3].astype(dt), hi,
+                                      f_hi, d_hi, last]), *warm])
     # l* = thr + f_hi at hi: the root of l* = 0 one Newton step back, where that step is short (the
     # slope is not ~0 there); the grasp holds for every mu above it.
     f_hi, d_hi = f_hi / hi, (d_hi - f_hi / hi) / hi  # back to l* - thr and its slope at hi
@@ -388,11 +429,11 @@ def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "
         iterations = default_iterations(min_weight_columns(points.shape[0], points.shape[1], contact, num_edges))
     out = _critical(num_edges, contact, points, normals, jnp.asarray(torsion, dt), jnp.asarray(cap, dt),
                     jnp.asarray(steps, jnp.int32), jnp.asarray(iterations, jnp.int32), tangents,
-                    fresh(dt) if start is None else jnp.asarray(start, dt))
+                    fresh(dt, resume_size(*points.shape, contact, num_edges)) if start is None
+                    else jnp.asarray(start, dt))
     return out if start is not None else out[:2]
 
 
 def min_weight_columns(n: int, d: int, contact: str, num_edges: int) -> int:
     """Columns of the min-weight LP of a grasp (its ``K`` weights, the margin and the slacks)."""
-    k = n * (2 if d == 2 else columns_per_contact(contact, num_edges))
-    return min_weight_lp(jnp.zeros((k, d + (1 if d == 2 else 3)))).A.shape[1]
+    return _lp_shape(n, d, contact, num_edges)[1]

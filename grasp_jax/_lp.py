@@ -396,8 +396,28 @@ def _finish(lp: LP, st: _State, inconsistent: jax.Array, y_null: jax.Array, acce
     return LPSolution(x, y, value, status, st.iterations, residual)
 
 
+def _warm(st: _State, start, weight) -> _State:
+    """The warm start of Skajaa, Andersen and Ye (2013) for the homogeneous model: ``weight`` times
+    a nearby problem's solution ``(x, y, s)`` (:func:`warm_point`) plus ``1 - weight`` times the
+    standard start, with ``tau = 1`` and ``kappa = 1 - weight`` (``weight = 0``: the standard start
+    itself). Any positive point is a valid start of the homogeneous model; this one is close to the
+    nearby optimum and still far enough inside the orthant for the central path to be followed."""
+    x, y, s = start
+    w = jnp.asarray(weight, st.x.dtype)
+    return st._replace(x=w * x + (1 - w) * st.x, y=w * y, s=w * s + (1 - w) * st.s, kappa=(1 - w) * st.kappa)
+
+
+def warm_point(lp: LP, solution: LPSolution) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(x, y, s)`` of ``solution`` to warm-start a nearby problem from (:func:`solve`'s ``warm``):
+    the primal point and the dual slacks ``c - A^T y`` clipped at 0, no gradient."""
+    A, _, c = jax.lax.stop_gradient(lp)
+    y = jax.lax.stop_gradient(solution.y)
+    return jnp.maximum(jax.lax.stop_gradient(solution.x), 0.0), y, jnp.maximum(c - A.T @ y, 0.0)
+
+
 def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool = False,
-          best_effort: bool = False, restarts: int | jax.Array | None = None) -> tuple[LPSolution, ...]:
+          best_effort: bool = False, restarts: int | jax.Array | None = None, warm=None,
+          weight=0.0) -> tuple[LPSolution, ...]:
     """Solve one or more independent LPs in a single fused iteration loop.
 
     Each iteration advances every LP by one step; the loop ends when all are done (under
@@ -421,6 +441,10 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
         restarts: with at least the default budget, how many of the starting points of
             ``tolerances(dtype).restarts`` (float32 only) a problem still unfinished runs from in
             turn (default: all); may be traced, as ``iterations``.
+        warm: one ``(x, y, s)`` (:func:`warm_point` of a nearby problem's solution) or ``None``
+            per LP: the LP starts from ``weight`` times it plus ``1 - weight`` times the standard
+            start (:func:`_warm`); restarts still run from the standard starting points.
+        weight: the warm start's weight in ``[0, 1)`` (may be traced; 0: the standard start).
 
     Returns:
         One :class:`LPSolution` per LP, in order.
@@ -444,6 +468,8 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
         checks = tuple(_inconsistency(lp) for lp in lps)
     # An inconsistent problem is certified before the first step and frozen.
     states = tuple(_init(lp)._replace(done=inconsistent) for lp, (inconsistent, _) in zip(lps, checks))
+    if warm is not None:
+        states = tuple(st if start is None else _warm(st, start, weight) for st, start in zip(states, warm))
     accept_near = iterations >= full  # a Python bool, or a traced one
     # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
     # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). A problem
