@@ -6,11 +6,17 @@ so that its comparisons with the float64 references (HiGHS, qhull, finite differ
 float64 under ``jit`` and ``grad`` too; ``test_dtypes.py`` checks float32 programs in
 subprocesses without it.
 
-Compiling XLA programs is most of the suite's time, so the suite keeps what it compiles in a
-cache of its own, ``<repo>/.test-cache/xla`` (git-ignored; ``GRASP_JAX_CACHE=DIR`` moves it,
-``GRASP_JAX_CACHE=off`` switches it off and compiles everything), set here before anything is
-compiled; the user's ``~/.cache`` is neither read nor written. The next run loads what this one
-compiled. Two caches share the folder:
+Compiling XLA programs is most of the suite's time. A developer who runs the suite again and
+again can keep what it compiles in a cache of its own: ``GRASP_JAX_CACHE=.test-cache/xla`` (any
+folder; ``.test-cache/`` is git-ignored), set here before anything is compiled; the next run
+loads what this one compiled. It is off by default (``GRASP_JAX_CACHE`` unset: the suite never
+reads or writes a cache, and the user's ``~/.cache`` neither): from a fresh clone it does not pay
+for itself (``tests/test_friction.py`` and ``tests/test_lp.py``, 2 workers: 146 s with an empty
+cache, 127 s without), and a test worker aborted inside XLA's serialization of an executable for
+the persistent cache three times (twice on a program with a Jacobi loop, once on the optimizer's
+critical-friction program; not reproduced in 8 runs of that test alone), which under ``--dist loadfile`` also left the run hanging (pytest-xdist
+issue 784: ``--max-worker-restart 0`` in ``pyproject.toml`` now ends such a run at once). Where it
+is on, two caches share the folder:
 
 * the test processes (the pytest-xdist workers of ``-n auto`` in ``pyproject.toml``; ``-n 0`` runs
   the suite in one process) switch on JAX's own persistent cache there, which keeps the programs
@@ -29,8 +35,7 @@ import signal
 from pathlib import Path
 
 #: The suite's compilation cache (see the docstring), before JAX is imported.
-TEST_CACHE = Path(__file__).resolve().parents[1] / ".test-cache" / "xla"
-os.environ.setdefault("GRASP_JAX_CACHE", str(TEST_CACHE))
+os.environ.setdefault("GRASP_JAX_CACHE", "off")  # opt in: GRASP_JAX_CACHE=.test-cache/xla
 #: The folder in effect for the whole session, or ``None`` when switched off (the values of
 #: ``grasp_jax._cache.OFF``, which cannot be imported before JAX).
 SUITE_CACHE = os.environ["GRASP_JAX_CACHE"]
