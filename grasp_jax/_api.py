@@ -446,7 +446,7 @@ def critical_friction(
         size = _friction.resume_size(points.shape[-2], points.shape[-1], contact, num_edges)
         start = jnp.zeros(batch + (size,), points.dtype) if traced else np.zeros(batch + (size,), points.dtype)
         mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,
-                                   progress=progress, retry=None if traced else retry)
+                                   progress=progress, retry=None if traced else retry, block=_friction.BLOCK)
     if not is_traced(status):
         stuck = int(np.sum(np.asarray(status) == _friction.FrictionStatus.NOT_CONVERGED))
         if stuck:

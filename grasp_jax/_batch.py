@@ -67,11 +67,11 @@ COMPILER_OPTIONS: dict = {"cpu": {"xla_backend_optimization_level": 1}}
 STATS: collections.Counter = collections.Counter()
 
 
-def _sizes(devices: tuple, chunk: int | None) -> tuple[int, int]:
+def _sizes(devices: tuple, chunk: int | None, block: int | None = None) -> tuple[int, int]:
     """``(block, chunk)`` for the devices' platform: grasps per vmapped block (per device) and per
     compiled call (all devices together)."""
     if devices[0].platform == "cpu":
-        return BLOCK, chunk or CHUNK
+        return block or BLOCK, chunk or CHUNK
     chunk = chunk or ACCELERATOR_CHUNK
     return max(1, chunk // len(devices)), chunk
 
@@ -404,6 +404,7 @@ def map_grasps(
     progress: bool = False,
     devices: tuple | None = None,
     retry: Retry | tuple | None = None,
+    block: int | None = None,
 ):
     """Apply a single-grasp function to every grasp of a batch.
 
@@ -424,6 +425,9 @@ def map_grasps(
             each on what the passes before it left unfinished. The traced path runs with the
             last pass's ``shared`` alone: under the caller's transformations there is no chunk to
             compact.
+        block: grasps per vmapped block on a CPU (default :data:`BLOCK`): a block runs each loop
+            until its slowest grasp is done, so a function whose loops vary much from grasp to
+            grasp (the critical friction search) wants smaller blocks. Ignored on accelerators.
 
     Returns:
         ``fn``'s pytree with ``batch_shape`` prepended to every leaf.
@@ -449,7 +453,7 @@ def map_grasps(
 
     devices = _check_devices(jax.local_devices() if devices is None else devices)
     ndev = len(devices)
-    block, chunk = _sizes(devices, chunk)
+    block, chunk = _sizes(devices, chunk, block)
     flat = tuple(np.asarray(a) for a in flat)
     shared = jax.device_get(shared)  # small: to each device from the host, not from device 0
     grasp_specs = tuple((a.shape[1:], a.dtype) for a in flat)

@@ -200,6 +200,13 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
 #: solved; the min-weight LP's solution there ``(x, y, s)`` follows (:func:`resume_size`).
 RESUME = 9
 
+#: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``; ``evaluate``'s is 256):
+#: every LP of a block runs until the block's slowest is done, and warm-started LPs vary more
+#: (mean 3-5 iterations, the slowest of 256 8-11). 8,192 ellipsoid grasps, 4 hard fingers, one
+#: process, 6 alternating calls each, best of them: 256 / 64 / 32 / 16 gave 8,377 / 9,736 / 10,224 /
+#: 10,111 searches/s (1/6.7, 1/5.8, 1/5.5, 1/5.5 of ``evaluate``).
+BLOCK = 32
+
 #: Warm starts (Skajaa, Andersen and Ye 2013; ``_lp.solve(warm=...)``): each step's LP starts from
 #: ``w`` times the last step's solution plus ``1 - w`` times the standard start, ``w`` by the
 #: relative move of ``mu`` from that step: below ``WARM[0]``, ``WARM[2]``; below ``WARM[1]``,
