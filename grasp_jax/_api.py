@@ -359,16 +359,20 @@ def _critical_first(points, normals, tangents, start, shared, *, num_edges, cont
     """The first stage of a search pass (``_batch.Staged``): ``steps`` steps, then the searches
     still open go on, gathered, for ``more`` steps (:func:`_critical_more`)."""
     torsion, cap, steps, more, iterations = shared
-    out = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
-                                          steps, start)
-    return out, out[2], (out[1] == _friction.FrictionStatus.NOT_CONVERGED) & (more > 0)
+    # the full state (with the last LP's solution) to the second stage, the short one to the batch
+    full = _friction.full_state(start, points.shape, contact, num_edges)
+    mu, status, state = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents,
+                                                        iterations, steps, full)
+    open_ = (status == _friction.FrictionStatus.NOT_CONVERGED) & (more > 0)
+    return (mu, status, state[:_friction.RESUME]), state, open_
 
 
 def _critical_more(points, normals, tangents, start, carry, shared, *, num_edges, contact):
     """The second stage: resumed from the first's state (a search it closed ends where it was)."""
     torsion, cap, steps, more, iterations = shared
-    return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
-                                           more, carry)
+    mu, status, state = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents,
+                                                        iterations, more, carry)
+    return mu, status, state[:_friction.RESUME]
 
 
 def _resume_search(out, batched):
@@ -443,8 +447,8 @@ def critical_friction(
         retry = Retry((torsion, cap, np.int32(_friction.MAX_STEPS), np.int32(0), iterations), _search_open,
                       _resume_search)
         # (traced: a jnp array, a NumPy constant of this dtype is not canonical inside jit)
-        size = _friction.resume_size(points.shape[-2], points.shape[-1], contact, num_edges)
-        start = jnp.zeros(batch + (size,), points.dtype) if traced else np.zeros(batch + (size,), points.dtype)
+        start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
+            np.zeros(batch + (_friction.RESUME,), points.dtype)
         mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,
                                    progress=progress, retry=None if traced else retry, block=_friction.BLOCK)
     if not is_traced(status):

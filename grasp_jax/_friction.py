@@ -194,11 +194,14 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
     return distinct >= (6 if d == 3 else 3) + 1
 
 
-#: Length of the head of the state a search ends with and another resumes from (:func:`_search`):
-#: whether it is a bracket at all, the last lower end an LP proved (``mu``, ``g``, ``g'``, whether
-#: ``g`` is known there), the upper end (``mu``, ``g``, ``g'``), and the friction of the last LP
-#: solved; the min-weight LP's solution there ``(x, y, s)`` follows (:func:`resume_size`).
-RESUME = 9
+#: Length of the state a search ends with and another resumes from (:func:`_search`): whether it
+#: is a bracket at all, the last lower end an LP proved (``mu``, ``g``, ``g'``, whether ``g`` is
+#: known there), the upper end (``mu``, ``g``, ``g'``). The full state (:func:`resume_size`) goes on
+#: with the friction of the last LP solved and that LP's solution ``(x, y, s)``, to warm-start the
+#: next step from; a search resumed from these 8 alone starts its first LP cold. (The full state is
+#: carried between the two stages of a chunk; a whole batch's second pass resumes from the 8, so
+#: that a batch of 10^6 grasps holds 8 floats of state each, not 80.)
+RESUME = 8
 
 #: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``; ``evaluate``'s is 256):
 #: every LP of a block runs until the block's slowest is done, and warm-started LPs vary more
@@ -226,14 +229,15 @@ def _lp_shape(n: int, d: int, contact: str, num_edges: int) -> tuple[int, int]:
 
 
 def resume_size(n: int, d: int, contact: str, num_edges: int) -> int:
-    """Length of a search's state (:func:`_search`): :data:`RESUME` and the LP's ``(x, y, s)``."""
+    """Length of a search's full state (:func:`_search`): :data:`RESUME`, the friction of the last
+    LP and that LP's ``(x, y, s)``."""
     rows, cols = _lp_shape(n, d, contact, num_edges)
-    return RESUME + 2 * cols + rows
+    return RESUME + 1 + 2 * cols + rows
 
 
-def fresh(dtype, size: int) -> jax.Array:
-    """``(size,)`` the state that starts a search from nothing (:func:`_search`)."""
-    return jnp.zeros(size, dtype)
+def fresh(dtype) -> jax.Array:
+    """``(RESUME,)`` the state that starts a search from nothing (:func:`_search`)."""
+    return jnp.zeros(RESUME, dtype)
 
 
 def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_edges, contact, tangents,
@@ -301,11 +305,11 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         lower[3], jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), failed, lower,
         jnp.zeros((), bool), sol_hi, jnp.asarray(cap, dt),
     )
-    if start is not None:
-        tail = start[RESUME:]
+    if start is not None:  # (the friction of the last LP is 0 where the state has no solution: cold)
+        tail = start[RESUME + 1:]
         warm0 = (tail[:cols], tail[cols:cols + rows], tail[cols + rows:])
         state = state[:-2] + (tuple(jnp.where(resume, v, old) for v, old in zip(warm0, sol_hi)),
-                              jnp.where(resume, start[RESUME - 1], cap))
+                              jnp.where(resume, start[RESUME], cap))
 
     def _closed(lo, hi):
         # relative accuracy, or mu* below atol: a grasp that holds at every mu > 0 but not at 0
@@ -349,7 +353,9 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         # next to it then closes the bracket however far hi still is (with hi's unit it could not
         # while hi was the cap, and cost one more step).
         x = jnp.clip(x, lo + 0.5 * rtol * jnp.where(lo > 0, lo, hi), hi - 0.5 * rtol * hi)
-        fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=_weight(jnp.abs(x - last) / last))
+        known_last = last > 0
+        weight = jnp.where(known_last, _weight(jnp.abs(x - last) / jnp.where(known_last, last, 1.0)), 0.0)
+        fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=weight)
         # An LP that did not converge (near the friction at which the LP turns infeasible, say)
         # proves nothing: x is not taken as force-closure, and becomes a lower end on credit
         # (``failed``); mu* = hi stays a friction at which a converged LP says force-closure.
@@ -427,8 +433,9 @@ def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "
     ``normals`` and ``torsion`` by the implicit function theorem. ``steps``: most root-finding steps,
     ``iterations``: interior-point iterations per step (default the full budget; both may be
     traced); a search left open after them has status ``NOT_CONVERGED``. See the module
-    docstring. With ``start`` (``(RESUME,)``, see :func:`_search`), returns ``(mu*, status,
-    state)``: the search resumes from ``start`` and ``state`` resumes it again."""
+    docstring. With ``start`` (``(RESUME,)`` or the full state of :func:`resume_size`, see
+    :func:`_search`), returns ``(mu*, status, state)`` with ``state`` of the same length: the search
+    resumes from ``start`` and ``state`` resumes it again."""
     normals = safe_normalize(normals)
     dt = points.dtype
     # Symbolic zero tangents: custom_jvp needs every differentiable argument to be an array.
@@ -436,9 +443,18 @@ def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "
         iterations = default_iterations(min_weight_columns(points.shape[0], points.shape[1], contact, num_edges))
     out = _critical(num_edges, contact, points, normals, jnp.asarray(torsion, dt), jnp.asarray(cap, dt),
                     jnp.asarray(steps, jnp.int32), jnp.asarray(iterations, jnp.int32), tangents,
-                    fresh(dt, resume_size(*points.shape, contact, num_edges)) if start is None
-                    else jnp.asarray(start, dt))
-    return out if start is not None else out[:2]
+                    full_state(fresh(dt) if start is None else jnp.asarray(start, dt), points.shape, contact,
+                               num_edges))
+    if start is None:
+        return out[:2]
+    return out if jnp.shape(start)[-1] != RESUME else (*out[:2], out[2][:RESUME])
+
+
+def full_state(start, shape, contact: str, num_edges: int):
+    """``start`` (the :data:`RESUME` floats a search resumes from, or its full state) as a full
+    state (:func:`resume_size`): padded with zeros (no solution to warm-start from)."""
+    size = resume_size(*shape, contact, num_edges)
+    return start if start.shape[-1] == size else jnp.concatenate([start, jnp.zeros(size - start.shape[-1], start.dtype)])
 
 
 def min_weight_columns(n: int, d: int, contact: str, num_edges: int) -> int:

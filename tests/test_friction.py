@@ -113,7 +113,7 @@ def test_second_pass_resumes_the_first_pass_bracket():
     points, normals = _batch("cylinder", 4, 24, seed=11)
     run = jax.jit(jax.vmap(lambda p, q, steps, its, start: _friction.critical_friction_one(
         p, q, 4.0, 8, steps=steps, iterations=its, start=start), in_axes=(0, 0, None, None, 0)))
-    fresh = jnp.zeros((len(points), _friction.resume_size(4, 3, "hard", 8)))
+    fresh = jnp.zeros((len(points), _friction.RESUME))
     _, first, state = run(points, normals, 2, 10, fresh)
     mu, status, _ = run(points, normals, 64, 30, state)
     whole, whole_status, _ = run(points, normals, 64, 30, fresh)
