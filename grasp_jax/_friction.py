@@ -51,8 +51,9 @@ average before them, 12 with them; one search in 4,096 still takes 23.)
 
 Each step's LP starts warm (``_lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
 step's solution, weighted by how far ``mu`` moved (:data:`WARM`); a Newton step that moves ``mu``
-by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second pass
-resumes from that solution too (it is part of the state).
+by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second
+stage of a pass resumes from that solution too (it is part of the search's full state); a batch's
+second pass resumes from the bracket alone (:data:`RESUME`), its first LP cold.
 
 Derivatives come from the implicit function theorem on ``l*(mu*, points, normals, torsion) = 0``:
 ``d mu* = -(d l*/d theta) / (d l*/d mu)``, with the envelope derivatives of the LP (no iteration
@@ -177,14 +178,15 @@ def threshold(dtype) -> float:
     return 10.0 * tolerances(dtype).lp
 
 
-def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations, warm=None, weight=0.0):
+def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations, warm=None, weight=0.0,
+            solution=False):
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
     (the caller checks it once: it does not depend on ``mu > 0``). The interior-point value, good
-    to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`). With ``warm``
-    (``_lp.warm_point`` of a nearby step's LP), ``(l*, status, warm point)`` from that warm start."""
+    to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`). ``warm, weight``:
+    a warm start from a nearby step's LP; ``solution``: also this LP's ``_lp.warm_point``."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
     return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER, warm=warm, weight=weight,
-                            solution=warm is not None)
+                            solution=solution)
 
 
 def _frictionless_possible(n: int, d: int, contact: str) -> bool:
@@ -218,6 +220,7 @@ WARM = (0.03, 0.3, 0.999, 0.99, 0.9)
 
 
 def _weight(r):
+    """The warm start's weight for a relative move ``r`` of ``mu`` (:data:`WARM`)."""
     a, b, w1, w2, w3 = WARM
     return jnp.where(r < a, w1, jnp.where(r < b, w2, w3))
 
@@ -244,8 +247,8 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
             iterations):
     """``(mu*, status, steps, state)`` by the bracketed root finding of the module docstring.
 
-    ``start``: ``(RESUME,)`` the ``state`` a search of the same grasp ended with (default
-    :func:`fresh`). A first pass with few steps and a short interior-point budget leaves some
+    ``start``: ``(resume_size(...),)`` the full ``state`` a search of the same grasp ended with
+    (:func:`full_state` of :func:`fresh` to start from nothing). A first pass with few steps and a short interior-point budget leaves some
     searches open; the second pass resumes them from their last proven bracket instead of starting
     again from ``[0, cap]`` (a lower end that only an unfinished LP put there is dropped for the
     one before it). A resumed search solves no LP at ``cap`` (its upper end is in ``start``); the
@@ -259,14 +262,14 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
     margin = partial(_margin, num_edges=num_edges, contact=contact, tangents=tangents, iterations=iterations)
 
     rows, cols = _lp_shape(n, d, contact, num_edges)
-    cold = (jnp.ones(cols, dt), jnp.zeros(rows, dt), jnp.ones(cols, dt))  # weight 0: any point
 
-    def value_and_slope(mu, budget=iterations, warm=cold, weight=0.0):
+    def value_and_slope(mu, budget=iterations, warm=None, weight=0.0):
         # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
         # negative without doubt; the function searched is g = mu (l* - thr), with the same root
         # and nearly straight (module docstring). Also the LP's warm point, to start the next from.
         (f, status, point), (df, _, _) = jax.jvp(
-            lambda m: margin(points, normals, m, torsion, iterations=budget, warm=warm, weight=weight), (mu,),
+            lambda m: margin(points, normals, m, torsion, iterations=budget, warm=warm, weight=weight,
+                             solution=True), (mu,),
             (jnp.ones_like(mu),))
         return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED, point
 

@@ -14,9 +14,9 @@ reads or writes a cache, and the user's ``~/.cache`` neither): from a fresh clon
 for itself (``tests/test_friction.py`` and ``tests/test_lp.py``, 2 workers: 146 s with an empty
 cache, 127 s without), and a test worker aborted inside XLA's serialization of an executable for
 the persistent cache three times (twice on a program with a Jacobi loop, once on the optimizer's
-critical-friction program; not reproduced in 8 runs of that test alone), which under ``--dist loadfile`` also left the run hanging (pytest-xdist
-issue 784: ``--max-worker-restart 0`` in ``pyproject.toml`` now ends such a run at once). Where it
-is on, two caches share the folder:
+critical-friction program; not reproduced in 8 runs of that test alone), which under ``--dist
+loadfile`` also left the run hanging (pytest-xdist issue 784: ``--max-worker-restart 0`` in
+``pyproject.toml`` now ends such a run at once). Where it is on, two caches share the folder:
 
 * the test processes (the pytest-xdist workers of ``-n auto`` in ``pyproject.toml``; ``-n 0`` runs
   the suite in one process) switch on JAX's own persistent cache there, which keeps the programs
