@@ -76,6 +76,21 @@ def _sizes(devices: tuple, chunk: int | None, block: int | None = None) -> tuple
     return max(1, chunk // len(devices)), chunk
 
 
+#: :func:`_pick_block` takes the largest block that leaves at most this share of a device's grasps
+#: as padding (a vmapped block computes its padding rows like real ones).
+PADDING = 1 / 8
+
+
+def _pick_block(sizes: tuple, total: int, ndev: int, chunk: int) -> int:
+    """The largest of ``sizes`` (largest first) whose padding of the grasps one device scores in
+    a chunk is at most :data:`PADDING` of them; the smallest where none is."""
+    per_device = -(-min(total, chunk) // ndev)
+    for size in sizes:
+        if -(-per_device // size) * size - per_device <= PADDING * per_device:
+            return size
+    return sizes[-1]
+
+
 def _local_size(chunk: int, ndev: int, block: int) -> int:
     """Grasps per device in one compiled call: ``chunk / ndev`` rounded down to whole blocks, at
     least one block."""
@@ -427,7 +442,10 @@ def map_grasps(
             compact.
         block: grasps per vmapped block on a CPU (default :data:`BLOCK`): a block runs each loop
             until its slowest grasp is done, so a function whose loops vary much from grasp to
-            grasp (the critical friction search) wants smaller blocks. Ignored on accelerators.
+            grasp (the critical friction search) wants smaller blocks; or a tuple of sizes, largest
+            first: the largest that the batch fills (:func:`_pick_block`), so that a block of
+            :data:`grasp_jax._lp.STREAM_MIN` or more streams its LPs (``_lp._stream``) where the
+            batch is large, without padding a small one to it. Ignored on accelerators.
 
     Returns:
         ``fn``'s pytree with ``batch_shape`` prepended to every leaf.
@@ -453,6 +471,8 @@ def map_grasps(
 
     devices = _check_devices(jax.local_devices() if devices is None else devices)
     ndev = len(devices)
+    if isinstance(block, tuple):
+        block = _pick_block(block, total, ndev, chunk or CHUNK)
     block, chunk = _sizes(devices, chunk, block)
     flat = tuple(np.asarray(a) for a in flat)
     shared = jax.device_get(shared)  # small: to each device from the host, not from device 0

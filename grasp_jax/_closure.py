@@ -740,7 +740,7 @@ def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, ta
 
 
 def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = False, full=None, pivots=None,
-                     warm=None, weight=0.0, solution: bool = False) -> tuple[jax.Array, ...]:
+                     warm=None, weight=0.0, solution: bool = False, skip=None) -> tuple[jax.Array, ...]:
     """``(l*, status)`` of :func:`min_weight_lp` on ``vectors: (K, D)``.
 
     ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
@@ -751,11 +751,12 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     ``pivots``: crossover pivots to a certified vertex (default ``tolerances(dtype).crossover``:
     none in float64, where the interior-point value is accurate to about 1e-8).
     ``warm, weight``: a warm start (:func:`grasp_jax._lp.solve`); ``solution``: also return the
-    solution's :func:`grasp_jax._lp.warm_point`, to warm-start a nearby LP from.
+    solution's :func:`grasp_jax._lp.warm_point`, to warm-start a nearby LP from. ``skip``: as
+    :func:`grasp_jax._lp.solve` (the result is then meaningless).
     """
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort,
-                   warm=None if warm is None else (warm,), weight=weight)
+                   warm=None if warm is None else (warm,), weight=weight, skip=skip)
     if not best_effort:
         if pivots is None:
             pivots = _pivots(tolerances(vectors.dtype), _full_budget(lp, iterations))

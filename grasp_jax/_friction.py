@@ -50,7 +50,7 @@ the side they fell on. (Random 4-finger grasps: the slowest of a block of 256 to
 average before them, 12 with them; one search in 4,096 still takes 23.)
 
 Each step's LP starts warm (``_lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
-step's solution, weighted by how far ``mu`` moved (:data:`WARM`); a Newton step that moves ``mu``
+step's solution, weighted by how far ``mu`` moved (``_lp.WARM``); a Newton step that moves ``mu``
 by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second
 stage of a pass resumes from that solution too (it is part of the search's full state); a batch's
 second pass resumes from the bracket alone (:data:`RESUME`), its first LP cold.
@@ -77,7 +77,7 @@ from ._closure import _gram_rank3, full_rank, min_weight_lp, min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._contact import columns_per_contact, wrench_columns
 from ._constants import default_iterations, tolerances
-from ._lp import Status
+from ._lp import Status, warm_weight
 
 #: Relative accuracy of ``mu*`` in float64 (the final bracket's width over its upper end).
 RTOL = 1e-6
@@ -179,14 +179,15 @@ def threshold(dtype) -> float:
 
 
 def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, iterations, warm=None, weight=0.0,
-            solution=False):
+            solution=False, skip=None):
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
     (the caller checks it once: it does not depend on ``mu > 0``). The interior-point value, good
     to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`). ``warm, weight``:
-    a warm start from a nearby step's LP; ``solution``: also this LP's ``_lp.warm_point``."""
+    a warm start from a nearby step's LP; ``solution``: also this LP's ``_lp.warm_point``; ``skip``:
+    not solved (``_lp.solve``; a finished search's step under ``vmap``)."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
     return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER, warm=warm, weight=weight,
-                            solution=solution)
+                            solution=solution, skip=skip)
 
 
 def _frictionless_possible(n: int, d: int, contact: str) -> bool:
@@ -205,25 +206,16 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
 #: that a batch of 10^6 grasps holds 8 floats of state each, not 80.)
 RESUME = 8
 
-#: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``; ``evaluate``'s is 256):
-#: every LP of a block runs until the block's slowest is done, and warm-started LPs vary more
-#: (mean 3-5 iterations, the slowest of 256 8-11). 8,192 ellipsoid grasps, 4 hard fingers, one
-#: process, 6 alternating calls each, best of them: 256 / 64 / 32 / 16 gave 8,377 / 9,736 / 10,224 /
-#: 10,111 searches/s (1/6.7, 1/5.8, 1/5.5, 1/5.5 of ``evaluate``).
-BLOCK = 32
-
-#: Warm starts (Skajaa, Andersen and Ye 2013; ``_lp.solve(warm=...)``): each step's LP starts from
-#: ``w`` times the last step's solution plus ``1 - w`` times the standard start, ``w`` by the
-#: relative move of ``mu`` from that step: below ``WARM[0]``, ``WARM[2]``; below ``WARM[1]``,
-#: ``WARM[3]``; else ``WARM[4]``.
-WARM = (0.03, 0.3, 0.999, 0.99, 0.9)
-
-
-def _weight(r):
-    """The warm start's weight for a relative move ``r`` of ``mu`` (:data:`WARM`)."""
-    a, b, w1, w2, w3 = WARM
-    return jnp.where(r < a, w1, jnp.where(r < b, w2, w3))
-
+#: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``, the first size the batch
+#: fills; ``evaluate``'s is 256). In a block of 512 the LPs of each step are streamed through
+#: ``_lp.LANES`` lanes (``_lp._stream``), each taking the iterations it needs, and a finished
+#: search's LP takes none (``skip``); in a block below ``_lp.STREAM_MIN`` every LP waits for the
+#: block's slowest, and warm-started LPs vary much (mean 3-5 iterations, the slowest of 256 8-11),
+#: so small blocks: 8,192 ellipsoid grasps, 4 hard fingers, best of 3 alternating calls, 1/5.3 of
+#: ``evaluate`` in blocks of 512 (1/5.4 at 1,024, 1/6.7 at 2,048: the block's slowest search sets
+#: its steps) against 1/5.8 in blocks of 32; lock step in blocks of 256 / 64 / 32 / 16 earlier:
+#: 1/6.7, 1/5.8, 1/5.5, 1/5.5.
+BLOCK = (512, 32)
 
 def _lp_shape(n: int, d: int, contact: str, num_edges: int) -> tuple[int, int]:
     """``(rows, columns)`` of the min-weight LP of a grasp of ``n`` contacts in ``d`` dimensions."""
@@ -263,13 +255,13 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
 
     rows, cols = _lp_shape(n, d, contact, num_edges)
 
-    def value_and_slope(mu, budget=iterations, warm=None, weight=0.0):
+    def value_and_slope(mu, budget=iterations, warm=None, weight=0.0, skip=None):
         # The root sought is l* = thr, so that a margin flat at 0 (up to round-off) below mu* is
         # negative without doubt; the function searched is g = mu (l* - thr), with the same root
         # and nearly straight (module docstring). Also the LP's warm point, to start the next from.
         (f, status, point), (df, _, _) = jax.jvp(
             lambda m: margin(points, normals, m, torsion, iterations=budget, warm=warm, weight=weight,
-                             solution=True), (mu,),
+                             solution=True, skip=skip), (mu,),
             (jnp.ones_like(mu),))
         return mu * (f - thr), (f - thr) + mu * df, status == Status.NOT_CONVERGED, point
 
@@ -357,8 +349,10 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         # while hi was the cap, and cost one more step).
         x = jnp.clip(x, lo + 0.5 * rtol * jnp.where(lo > 0, lo, hi), hi - 0.5 * rtol * hi)
         known_last = last > 0
-        weight = jnp.where(known_last, _weight(jnp.abs(x - last) / jnp.where(known_last, last, 1.0)), 0.0)
-        fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=weight)
+        weight = jnp.where(known_last, warm_weight(jnp.abs(x - last) / jnp.where(known_last, last, 1.0)), 0.0)
+        # Under vmap the body runs for every grasp of the block; a finished search's LP is skipped
+        # (its result is discarded), so that a streamed solve (``_lp._stream``) gives it no lane.
+        fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=weight, skip=~cond(s))
         # An LP that did not converge (near the friction at which the LP turns infeasible, say)
         # proves nothing: x is not taken as force-closure, and becomes a lower end on credit
         # (``failed``); mu* = hi stays a friction at which a converged LP says force-closure.

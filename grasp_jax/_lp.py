@@ -407,6 +407,20 @@ def _warm(st: _State, start, weight) -> _State:
     return st._replace(x=w * x + (1 - w) * st.x, y=w * y, s=w * s + (1 - w) * st.s, kappa=(1 - w) * st.kappa)
 
 
+#: Warm starts' weights by how far the problem moved (relative): below ``WARM[0]``, ``WARM[2]``;
+#: below ``WARM[1]``, ``WARM[3]``; else ``WARM[4]`` (:func:`warm_weight`). Measured on the min-weight
+#: LPs of the critical friction search (``_friction``): iterations per LP 9.1 -> 3.3-3.5 for moves
+#: of 1e-3..1e-4, 8.8 -> 6.1 for 3e-2, 8.6 -> 7.2 for 2x.
+WARM = (0.03, 0.3, 0.999, 0.99, 0.9)
+
+
+def warm_weight(move):
+    """The warm start's weight (:func:`solve`'s ``weight``) for a relative move ``move`` of the
+    problem's data since the solution it starts from (:data:`WARM`)."""
+    a, b, w1, w2, w3 = WARM
+    return jnp.where(move < a, w1, jnp.where(move < b, w2, w3))
+
+
 def warm_point(lp: LP, solution: LPSolution) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(x, y, s)`` of ``solution`` to warm-start a nearby problem from (:func:`solve`'s ``warm``):
     the primal point and the dual slacks ``c - A^T y`` clipped at 0, no gradient."""
@@ -417,7 +431,7 @@ def warm_point(lp: LP, solution: LPSolution) -> tuple[jax.Array, jax.Array, jax.
 
 def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool = False,
           best_effort: bool = False, restarts: int | jax.Array | None = None, warm=None,
-          weight=0.0) -> tuple[LPSolution, ...]:
+          weight=0.0, skip=None) -> tuple[LPSolution, ...]:
     """Solve one or more independent LPs in a single fused iteration loop.
 
     Each iteration advances every LP by one step; the loop ends when all are done (under
@@ -445,6 +459,9 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
             per LP: the LP starts from ``weight`` times it plus ``1 - weight`` times the standard
             start (:func:`_warm`); restarts still run from the standard starting points.
         weight: the warm start's weight in ``[0, 1)`` (may be traced; 0: the standard start).
+        skip: a boolean (may be traced): the LPs are not solved (their solution is meaningless),
+            for a caller under ``vmap`` whose result for this problem is discarded (a search that
+            is already done): a streamed solve (:func:`_stream`) gives it no lane.
 
     Returns:
         One :class:`LPSolution` per LP, in order.
@@ -455,51 +472,194 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
                 f"solve() takes one LP with A: (rows, cols), b: (rows,), c: (cols,); got shapes "
                 f"{lp.A.shape}, {lp.b.shape}, {lp.c.shape}. Batch with jax.vmap."
             )
-    full = default_iterations(max(lp.A.shape[1] for lp in lps))
+    if isinstance(iterations, jax.Array):
+        iterations = iterations.astype(jnp.int32)
+    elif iterations is not None:
+        iterations = int(iterations)
+    skip = jnp.zeros((), bool) if skip is None else jnp.asarray(skip, bool)
+    if len(lps) > 1:
+        return _loop(lps, iterations, consistent, best_effort, restarts, warm, weight, skip)
+    return (_single(lps[0], None if warm is None else warm[0], weight, skip, iterations, restarts, consistent,
+                    best_effort),)
+
+
+class _Plan(NamedTuple):
+    """What :func:`_loop` and :func:`_stream` share: the budget, whether a best iterate within
+    ``near`` counts (``accept_near``), the restarts' starting points and their count, and the
+    iteration limit of one problem (restarts included)."""
+
+    iterations: int | jax.Array
+    accept_near: bool | jax.Array
+    factors: tuple
+    starts: jax.Array
+    count: int | jax.Array
+    limit: int | jax.Array
+
+
+def _plan(columns: int, dtype, iterations, best_effort: bool, restarts) -> _Plan:
+    full = default_iterations(columns)
     if iterations is None:
         iterations = full
-    elif isinstance(iterations, jax.Array):
-        iterations = iterations.astype(jnp.int32)
-    else:
-        iterations = int(iterations)
-    if consistent:
-        checks = tuple((jnp.zeros((), bool), jnp.zeros_like(lp.b)) for lp in lps)
-    else:
-        checks = tuple(_inconsistency(lp) for lp in lps)
-    # An inconsistent problem is certified before the first step and frozen.
-    states = tuple(_init(lp)._replace(done=inconsistent) for lp, (inconsistent, _) in zip(lps, checks))
-    if warm is not None:
-        states = tuple(st if start is None else _warm(st, start, weight) for st, start in zip(states, warm))
     accept_near = iterations >= full  # a Python bool, or a traced one
     # float32, full budget: a trajectory can stall off the optimum (rounding, not the problem); a
     # start elsewhere mostly does not (2/3 of the stalled sphere grasps then converged). A problem
     # unfinished after its budget starts again from each starting point in turn, inside the same
     # loop (one copy of the step in the program: a second loop for the restarts cost a third of
     # the compile time of a float32 ``evaluate``); the others stay frozen.
-    factors = tolerances(lps[0].A.dtype).restarts if accept_near is not False and not best_effort else ()
+    factors = tolerances(dtype).restarts if accept_near is not False and not best_effort else ()
     if restarts is not None and not isinstance(restarts, jax.Array):
         factors = factors[: max(0, int(restarts))]
     count = len(factors) if not isinstance(restarts, jax.Array) else jnp.clip(restarts, 0, len(factors))
     # With restarts, each round has an extra step (``_restart``).
     limit = (1 + len(factors)) * (iterations + 1) if factors else iterations
-    starts = jnp.asarray(factors or (1.0,), lps[0].A.dtype)
+    return _Plan(iterations, accept_near, factors, jnp.asarray(factors or (1.0,), dtype), count, limit)
+
+
+def _start(lp: LP, consistent: bool, warm, weight, skip) -> tuple[_State, tuple[jax.Array, jax.Array]]:
+    """The starting state of one LP and its up-front inconsistency test ``(certified, y)``."""
+    check = (jnp.zeros((), bool), jnp.zeros_like(lp.b)) if consistent else _inconsistency(lp)
+    # An inconsistent problem is certified before the first step and frozen (a skipped one too).
+    st = _init(lp)._replace(done=check[0] | skip)
+    return (st if warm is None else _warm(st, warm, weight)), check
+
+
+def _advance(lp: LP, st: _State, plan: _Plan) -> _State:
+    """One iteration of one LP: a step, and a restart where its budget is spent (float32)."""
+    st = _step(lp, st)
+    if plan.factors:
+        st = _restart(lp, st, plan.iterations, plan.starts, plan.count, plan.accept_near)
+    return st
+
+
+def _finished(st: _State, plan: _Plan) -> jax.Array:
+    """Whether an LP needs no more iterations: done, or (without restarts, which mark a spent
+    budget done themselves) its budget spent."""
+    return st.done if plan.factors else st.done | (st.iterations >= plan.iterations)
+
+
+def _result(lp: LP, st: _State, check, plan: _Plan, best_effort: bool) -> LPSolution:
+    # A short budget (the first pass of ``_batch.Retry``) reports unfinished problems as such.
+    if best_effort:
+        return _finish(lp, st, *check, False, True)
+    return _finish(lp, st, *check, plan.accept_near)
+
+
+def _loop(lps, iterations, consistent, best_effort, restarts, warm, weight, skip) -> tuple[LPSolution, ...]:
+    """:func:`solve` for one problem of each of ``lps``, in one fused loop (under ``vmap``, in lock
+    step: the loop runs until the slowest problem of the batch is done)."""
+    plan = _plan(max(lp.A.shape[1] for lp in lps), lps[0].A.dtype, iterations, best_effort, restarts)
+    starts = [_start(lp, consistent, None if warm is None else warm[k], weight, skip) for k, lp in enumerate(lps)]
+    states = tuple(st for st, _ in starts)
 
     def body(carry):
         k, sts = carry
-        sts = tuple(_step(lp, st) for lp, st in zip(lps, sts))
-        if factors:
-            sts = tuple(_restart(lp, st, iterations, starts, count, accept_near) for lp, st in zip(lps, sts))
-        return k + 1, sts
+        return k + 1, tuple(_advance(lp, st, plan) for lp, st in zip(lps, sts))
 
     def cond(carry):
         k, sts = carry
-        return (k < limit) & ~jnp.all(jnp.stack([st.done for st in sts]))
+        return (k < plan.limit) & ~jnp.all(jnp.stack([st.done for st in sts]))
 
     _, states = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), states))
-    # A short budget (the first pass of ``_batch.Retry``) reports unfinished problems as such.
-    if best_effort:
-        return tuple(_finish(lp, st, *check, False, True) for lp, st, check in zip(lps, states, checks))
-    return tuple(_finish(lp, st, *check, accept_near) for lp, st, check in zip(lps, states, checks))
+    return tuple(_result(lp, st, check, plan, best_effort) for lp, st, (_, check) in zip(lps, states, starts))
+
+
+#: A vmapped :func:`solve` of at least this many problems streams them through :data:`LANES`
+#: lanes (:func:`_stream`) instead of running them in lock step. Callers choose it by the size of
+#: their vmapped blocks (``_batch.map_grasps(block=)``).
+STREAM_MIN = 512
+#: Lanes of a streamed solve. Measured (8,192 quality or torque LPs of 4-finger grasps, one CPU
+#: device): 64 to 128 lanes in batches of 512 to 8,192 1.2x to 1.5x faster than lock-step blocks of
+#: 256 with the full budget, and 1.5x to 1.9x with warm starts (mean 4-5 iterations); 256 lanes
+#: slower (the per-lane work of the refill grows with the lanes).
+LANES = 128
+
+
+def _single(lp: LP, warm, weight, skip, iterations, restarts, consistent: bool, best_effort: bool) -> LPSolution:
+    """One LP through :func:`_loop`, with a batching rule: ``vmap`` over :data:`STREAM_MIN` or more
+    problems streams them (:func:`_stream`), with the same results."""
+    traced = tuple(v for v in (iterations, restarts) if isinstance(v, jax.Array))
+
+    def options(dynamic):
+        it, rs = iterations, restarts
+        dynamic = list(dynamic)
+        if isinstance(iterations, jax.Array):
+            it = dynamic.pop(0)
+        if isinstance(restarts, jax.Array):
+            rs = dynamic.pop(0)
+        return it, rs
+
+    def one(lp, warm, weight, skip, dynamic):
+        it, rs = options(dynamic)
+        return _loop((lp,), it, consistent, best_effort, rs, None if warm is None else (warm,), weight, skip)[0]
+
+    fn = jax.custom_batching.custom_vmap(one)
+
+    @fn.def_vmap
+    def rule(size, batched, lp, warm, weight, skip, dynamic):
+        lp_b, warm_b, weight_b, skip_b, dynamic_b = batched
+        flags = jax.tree_util.tree_leaves(batched)
+        if size < STREAM_MIN or any(jax.tree_util.tree_leaves(dynamic_b)) or not any(flags):
+            axes = jax.tree_util.tree_map(lambda b: 0 if b else None, batched)
+            out = jax.vmap(one, in_axes=tuple(axes))(lp, warm, weight, skip, dynamic)
+        else:
+            wide = lambda a, b: a if b else jnp.broadcast_to(a, (size,) + jnp.shape(a))  # noqa: E731
+            lp, warm, weight, skip = jax.tree_util.tree_map(wide, (lp, warm, weight, skip),
+                                                            (lp_b, warm_b, weight_b, skip_b))
+            it, rs = options(dynamic)
+            out = _stream(lp, warm, weight, skip, it, rs, consistent, best_effort)
+        return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    return fn(lp, warm, jnp.asarray(weight, lp.A.dtype), skip, traced)
+
+
+def _stream(lps: LP, warm, weight, skip, iterations, restarts, consistent: bool, best_effort: bool) -> LPSolution:
+    """``vmap`` of :func:`solve` over a batch of single LPs (leading axis ``N`` on every leaf),
+    streamed: :data:`LANES` problems iterate at a time, and a lane whose problem is finished takes
+    the next one of the batch at once, instead of every problem waiting for the slowest of its
+    block. Each problem takes exactly the iterations it takes alone, so the results are
+    :func:`_loop`'s (up to the rounding of differently vectorized arithmetic). Problems done
+    before the first step (certified inconsistent, or ``skip``) never take a lane."""
+    N = lps.b.shape[0]
+    lanes = min(LANES, N)
+    plan = _plan(lps.A.shape[-1], lps.A.dtype, iterations, best_effort, restarts)
+    states, checks = jax.vmap(lambda lp, w, wt, sk: _start(lp, consistent, w, wt, sk))(lps, warm, weight, skip)
+    # The queue: positions of the problems to iterate, the others (already done) after them.
+    order = jnp.argsort(states.done, stable=True).astype(jnp.int32)
+    live = N - jnp.sum(states.done, dtype=jnp.int32)
+
+    def load(pos):
+        """``(problem, lp, state)`` of queue positions ``pos: (lanes,)``; past the queue's end an
+        empty lane (problem ``N``, done)."""
+        empty = pos >= live
+        index = order[jnp.clip(pos, 0, N - 1)]
+        take = lambda a: a[index]  # noqa: E731
+        st = jax.tree_util.tree_map(take, states)
+        return jnp.where(empty, N, index), jax.tree_util.tree_map(take, lps), st._replace(done=st.done | empty)
+
+    def refill(carry, finished):
+        ahead, index, lp, st, out = carry
+        target = jnp.where(finished, index, N)
+        out = jax.tree_util.tree_map(lambda o, s: o.at[target].set(s, mode="drop"), out, st)
+        pos = ahead + jnp.cumsum(finished, dtype=jnp.int32) - 1
+        new_index, new_lp, new_st = load(pos)
+        pick = lambda new, old: jnp.where(finished.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
+        lp, st = jax.tree_util.tree_map(pick, (new_lp, new_st), (lp, st))
+        return ahead + jnp.sum(finished, dtype=jnp.int32), jnp.where(finished, new_index, index), lp, st, out
+
+    def body(carry):
+        ahead, index, lp, st, out = carry
+        st = jax.vmap(lambda p, s: _advance(p, s, plan))(lp, st)
+        carry = (ahead, index, lp, st, out)
+        finished = _finished(st, plan) & (index < N)
+        # Every finished lane takes its next problem at once (refilling only once 16 or 32 lanes
+        # had finished, the others waiting frozen, measured within the noise).
+        return jax.lax.cond(jnp.any(finished), refill, lambda c, f: c, carry, finished)
+
+    first = jnp.arange(lanes, dtype=jnp.int32)
+    index, lp, st = load(first)
+    carry = (jnp.asarray(lanes, jnp.int32), index, lp, st, states)
+    *_, out = jax.lax.while_loop(lambda c: jnp.any(c[1] < N), body, carry)
+    return jax.vmap(lambda lp, st, check: _result(lp, st, check, plan, best_effort))(lps, out, checks)
 
 
 def optimal_value(lp: LP, solution: LPSolution) -> jax.Array:

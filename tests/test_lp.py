@@ -305,3 +305,68 @@ def test_optimal_value_zero_unless_optimal():
     assert float(optimal_value(lp, sol)) == 0.0
     g = jit(jax.grad(lambda A, sol: optimal_value(LP(A, b, c), sol)))(A, sol)
     assert np.all(np.asarray(g) == 0.0)
+
+
+def _lock_step(fn, block=64):
+    """``vmap(fn)`` over blocks of ``block`` < ``STREAM_MIN`` problems: solved in lock step."""
+
+    def run(*args):
+        n = args[0].shape[0]
+        split = jax.tree_util.tree_map(lambda a: a.reshape((n // block, block) + a.shape[1:]), args)
+        out = jax.lax.map(lambda xs: jax.vmap(fn)(*xs), split)
+        return jax.tree_util.tree_map(lambda a: a.reshape((n,) + a.shape[2:]), out)
+
+    return run
+
+
+def _stream_case(fn, args, lanes_active=None):
+    streamed = jax.tree_util.tree_map(np.asarray, jit(jax.vmap(fn))(*args))
+    locked = jax.tree_util.tree_map(np.asarray, jit(_lock_step(fn))(*args))
+    keep = slice(None) if lanes_active is None else lanes_active
+    np.testing.assert_array_equal(streamed.status[keep], locked.status[keep])
+    np.testing.assert_array_equal(streamed.iterations[keep], locked.iterations[keep])
+    for a, b in ((streamed.x, locked.x), (streamed.y, locked.y), (streamed.value, locked.value)):
+        np.testing.assert_allclose(a[keep], b[keep], rtol=1e-7, atol=1e-9)  # round-off of other vector widths
+    return streamed, locked
+
+
+def test_streamed_batch_equals_lock_step():
+    """A vmapped solve of ``STREAM_MIN`` or more problems streams them through ``LANES`` lanes
+    (``_lp._stream``): every problem gets the iterations, status and solution it gets in lock step
+    (feasible, infeasible, inconsistent; full and short budgets, best effort, a traced budget, warm
+    starts with per-problem weights, skipped problems, float32 restarts), and the envelope gradient."""
+    from grasp_jax import _lp
+
+    rng = np.random.default_rng(11)
+    n = _lp.STREAM_MIN
+    kinds = [_feasible(rng) if k % 3 else _infeasible(rng) for k in range(n - 8)]
+    kinds += [_rank_deficient(rng, "inconsistent") for _ in range(8)]
+    A, b, c = (jnp.asarray(np.stack(x)) for x in zip(*kinds))
+    statuses = _stream_case(lambda A, b, c: solve(LP(A, b, c))[0], (A, b, c))[0].status
+    assert {Status.OPTIMAL, Status.INFEASIBLE} <= set(statuses.tolist())
+    short, _ = _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4)[0], (A, b, c))
+    assert np.any(short.status == Status.NOT_CONVERGED)
+    _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4, best_effort=True)[0], (A, b, c))
+    _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=jnp.int32(5))[0], (A, b, c))
+    # warm from a nearby problem's solution, weight 0 for every third problem
+    first = jit(jax.vmap(lambda A, b, c: solve(LP(A, b, c))[0]))(A, b, c)
+    point = jax.vmap(lambda A, b, c, s: warm_point(LP(A, b, c), s))(A, b, c, first)
+    near = A + 1e-3 * jnp.asarray(rng.normal(size=A.shape))
+    weight = jnp.where(jnp.arange(n) % 3 == 0, 0.0, 0.99)
+    _stream_case(lambda A, b, c, x, y, s, w: solve(LP(A, b, c), warm=((x, y, s),), weight=w)[0],
+                 (near, b, c, *point, weight))
+    skip = jnp.asarray(rng.uniform(size=n) < 0.5)
+    skipped, _ = _stream_case(lambda A, b, c, k: solve(LP(A, b, c), skip=k)[0], (A, b, c, skip),
+                              lanes_active=~np.asarray(skip))
+    assert np.all(skipped.iterations[np.asarray(skip)] == 0)
+    # float32 (restarts from other starting points after a spent budget): the same statuses but
+    # for round-off at the tolerance
+    f32 = tuple(a.astype(jnp.float32) for a in (A, b, c))
+    fn = lambda A, b, c: solve(LP(A, b, c))[0]  # noqa: E731
+    streamed = jit(jax.vmap(fn))(*f32)
+    locked = jit(_lock_step(fn))(*f32)
+    assert np.mean(np.asarray(streamed.status) == np.asarray(locked.status)) >= 0.99
+    # the envelope gradient of the optimal values in c, streamed and in lock step
+    total = lambda fn: jit(jax.grad(lambda c: jnp.sum(fn(A, b, c))))(c)  # noqa: E731
+    value = lambda A, b, c: optimal_value(LP(A, b, c), solve(jax.lax.stop_gradient(LP(A, b, c)))[0])  # noqa: E731
+    np.testing.assert_allclose(total(jax.vmap(value)), total(_lock_step(value)), rtol=1e-9, atol=1e-10)
