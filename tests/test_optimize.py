@@ -164,7 +164,8 @@ def test_the_optimizer_sees_the_sum_of_its_updates_as_params(rectangle):
     go_to = optax.GradientTransformation(lambda p: optax.EmptyState(), lambda u, s, p: (target - p, s))
     init = np.array([[[-1.0, -0.2], [1.0, 0.1]]])
     res = gj.optimize(rectangle, init=init, fingers=2, mu=MU, steps=5, optimizer=go_to)
-    np.testing.assert_allclose(res.history[:, 1:], np.broadcast_to(res.history[:, 1:2], (1, 4)), rtol=1e-12)
+    # (the same LP each step, but the first of them cold and the others warm from it: 5e-12 apart)
+    np.testing.assert_allclose(res.history[:, 1:], np.broadcast_to(res.history[:, 1:2], (1, 4)), rtol=1e-10)
     moved = init + np.asarray(target) * res.scale
     assert np.allclose(res.points, init, atol=1e-9) or np.allclose(res.points, moved, atol=1e-9)
     assert not np.allclose(res.history[:, 0], res.history[:, 1])
