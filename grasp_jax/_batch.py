@@ -471,8 +471,9 @@ def map_grasps(
 
     devices = _check_devices(jax.local_devices() if devices is None else devices)
     ndev = len(devices)
-    if isinstance(block, tuple):
-        block = _pick_block(block, total, ndev, chunk or CHUNK)
+    sizes = block if isinstance(block, tuple) else None
+    if sizes is not None:
+        block = _pick_block(sizes, total, ndev, chunk or CHUNK)
     block, chunk = _sizes(devices, chunk, block)
     flat = tuple(np.asarray(a) for a in flat)
     shared = jax.device_get(shared)  # small: to each device from the host, not from device 0
@@ -492,6 +493,11 @@ def map_grasps(
         if devices[0].platform != "cpu":
             cap, cap_block = _retry_sizes(devices, chunk, block)
             second = _program(call, grasp_specs, shared, cap, cap_block, multi)
+        elif sizes is not None and _pick_block(sizes, again.size, ndev, chunk) != block:
+            # A few grasps again: in the block that they fill (a program of its own), not padded
+            # to the first pass's wide block, whose padding rows would be scored like real ones.
+            narrow = _pick_block(sizes, again.size, ndev, chunk)
+            second = _program(call, grasp_specs, shared, _local_size(chunk, ndev, narrow), narrow, multi)
         again_flat = flat if retry.resume is None else tuple(np.asarray(a) for a in retry.resume(out, flat))
         if [(a.shape, a.dtype) for a in again_flat] != [(a.shape, a.dtype) for a in flat]:
             raise TypeError("Retry.resume must return the batched arrays with their shapes and types")
