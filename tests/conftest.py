@@ -30,6 +30,7 @@ loadfile`` also left the run hanging (pytest-xdist issue 784: ``--max-worker-res
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 from pathlib import Path
@@ -113,6 +114,43 @@ LONGEST_FIRST = (
 def pytest_collection_modifyitems(config, items):
     rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: files stay whole
+
+
+def _memory_maps() -> int:
+    """Memory maps of this process (0 where ``/proc`` has no such file)."""
+    try:
+        with open("/proc/self/maps") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0
+
+
+def _max_memory_maps() -> int:
+    try:
+        return int(Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        return 65530
+
+
+#: XLA's CPU executables hold a few memory maps each (their JIT code) for as long as they live, and
+#: a test worker keeps every program it compiled: one reached Linux's ``vm.max_map_count`` (65,530)
+#: 93% through the suite, and the next compile died inside XLA (segmentation faults and aborts in
+#: ``backend_compile_and_load``, three runs in a row; ``tests/test_friction.py`` alone grows to
+#: 13,000 maps). Past half the limit, a finished test module's programs are dropped (a later module
+#: compiles again what it needs).
+MAX_MEMORY_MAPS = _max_memory_maps() // 2
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    yield
+    if _memory_maps() > MAX_MEMORY_MAPS:
+        from grasp_jax import _batch
+
+        with _batch._LOCK:
+            _batch._PROGRAMS.clear()
+        jax.clear_caches()
+        gc.collect()
 
 
 @pytest.fixture(scope="session")
