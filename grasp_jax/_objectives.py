@@ -47,8 +47,6 @@ All take ``points, normals: (n, d)`` and return a scalar, plus a small dict of m
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
@@ -58,7 +56,7 @@ from ._closure import SHIFT, _exact_torque_2d, about_first, min_weight_value, qu
 from ._contact import wrench_columns
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
-from ._lp import Status, has_value, optimal_value, solve, warm_point
+from ._lp import Status, has_value, optimal_value, solve
 from ._validate import check_scalar
 from ._wrench import cross
 
@@ -81,72 +79,38 @@ FLOOR = -10.0
 DFC_EPSILON = 0.01
 
 
-class Warm(NamedTuple):
-    """A solved LP's point to warm-start the same LP of a nearby grasp from (``gj.optimize``'s next
-    step): ``point = (x, y, s)`` (:func:`grasp_jax._lp.warm_point`) and ``ok``, whether the LP had
-    a value (an infeasible one's certificate is no start: the next LP then starts cold)."""
-
-    point: tuple[jax.Array, jax.Array, jax.Array]
-    ok: jax.Array
-
-
-def _warm_args(warm: Warm | None, weight):
-    """``solve``'s ``(warm, weight)`` from a :class:`Warm` or ``None`` (a cold start)."""
-    if warm is None:
-        return None, 0.0
-    return (warm.point,), jnp.where(warm.ok, weight, 0.0)
-
-
-def signed_quality(cols, edges, iterations=None, best_effort: bool = False, warm: Warm | None = None, weight=0.0,
-                   solution: bool = False):
+def signed_quality(cols, edges, iterations=None, best_effort: bool = False) -> jax.Array:
     """``delta*`` of the always-feasible quality LP (``Q`` where positive), envelope derivatives.
 
     Args:
         cols: the grasp's wrench columns about ``c_1`` (``_closure.about_first``); edges:
             ``(n, m, d)`` cone edges (:func:`cone_edges`).
-        iterations, best_effort: as :func:`grasp_jax._lp.solve`.
-        warm, weight: a warm start (:class:`Warm` of a nearby grasp's LP, ``None``: cold) and its
-            weight (:func:`grasp_jax._lp.solve`).
-        solution: also return the :class:`Warm` of this LP, ``(delta*, warm)``."""
+        iterations, best_effort: as :func:`grasp_jax._lp.solve`."""
     lp = quality_lp(cols, edges)
-    start, weight = _warm_args(warm, weight)
-    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, best_effort=best_effort,
-                   warm=start, weight=weight)
-    value = jnp.where(has_value(sol), -optimal_value(lp, sol) - SHIFT, 0.0)
-    return (value, Warm(warm_point(lp, sol), has_value(sol))) if solution else value
+    (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, best_effort=best_effort)
+    return jnp.where(has_value(sol), -optimal_value(lp, sol) - SHIFT, 0.0)
 
 
-def torque_margin(cols, iterations=None, best_effort: bool = False, warm: Warm | None = None, weight=0.0,
-                  solution: bool = False):
+def torque_margin(cols, iterations=None, best_effort: bool = False) -> jax.Array:
     """``T`` of the module docstring: > 0 iff the torques about ``c_1`` of the columns of the
     torque test (hard contacts: of contacts 2..n) positively span R^3 (R in 2D). Arguments as
-    :func:`signed_quality` (in 2D, where no LP is solved, ``warm`` is ``None`` in and out)."""
+    :func:`signed_quality`."""
     tau = cols.torque[cols.fixed:]
     if tau.shape[-1] == 1:
-        margin = _exact_torque_2d(tau)[1]
-        return (margin, None) if solution else margin
-    start, weight = _warm_args(warm, weight)
-    margin, status, point = min_weight_value(tau, iterations, best_effort, warm=None if start is None else start[0],
-                                             weight=weight, solution=True)
-    margin = jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
-    ok = (status == Status.OPTIMAL) | (status == Status.APPROXIMATE)
-    return (margin, Warm(point, ok)) if solution else margin
+        return _exact_torque_2d(tau)[1]
+    margin, status = min_weight_value(tau, iterations, best_effort)
+    return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
 
 
-def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="hard", torsion=0.0, warm=None,
-             weight=0.0):
-    """``(value, delta*, weighted T, warm)`` of ``"closure"``; ``warm``: ``(quality, torque)``
-    :class:`Warm` points of a nearby grasp or ``None``, and the returned pair of this one's."""
+def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="hard", torsion=0.0):
     normals = safe_normalize(normals)
     edges = cone_edges(normals, mu, num_edges)
     cols = about_first(points, normals, edges, contact, torsion)
-    wq, wt = (None, None) if warm is None else warm
-    delta, wq = signed_quality(cols, edges, iterations, best_effort, wq, weight, solution=True)
-    torque, wt = torque_margin(cols, iterations, best_effort, wt, weight, solution=True)
-    torque = TORQUE_WEIGHT * torque
+    delta = signed_quality(cols, edges, iterations, best_effort)
+    torque = TORQUE_WEIGHT * torque_margin(cols, iterations, best_effort)
     # Where both are negative their sum, so that the torque term still pulls where delta* sits on
     # its floor -1 (the first contact alone: a constant, though the LP's dual gives it a gradient).
-    return jnp.minimum(jnp.minimum(delta, torque), delta + torque), delta, torque, (wq, wt)
+    return jnp.minimum(jnp.minimum(delta, torque), delta + torque), delta, torque
 
 
 def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None,
@@ -181,7 +145,7 @@ def dfc_energy(points, normals, center, scale, eig: bool) -> jax.Array:
 
 
 def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None,
-                  best_effort: bool = False, contact: str = "hard", torsion=0.0, warm=None, weight=0.0):
+                  best_effort: bool = False, contact: str = "hard", torsion=0.0):
     """``(value, monitors)`` of objective ``kind`` for one grasp (larger is better).
 
     Args:
@@ -194,25 +158,20 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
         best_effort: LPs unfinished after ``iterations`` give their best iterate's value (see
             :func:`grasp_jax._lp.solve`): what ``gj.optimize`` uses, with a short budget.
         contact, torsion: the contact model (``_contact``); the DFC energies ignore it.
-        warm, weight: ``"closure"`` only: its LPs start from ``monitors["warm"]`` of a nearby
-            grasp (``gj.optimize``'s last step) with this weight (:func:`grasp_jax._lp.solve`);
-            ``None``: cold. Other objectives ignore them.
 
     Returns:
         ``value: ()`` and ``monitors``: ``{"delta": delta*, "torque": weighted T}`` for the closure
-        objectives (about the reported ``c_1``), with ``"warm"`` (this grasp's LP points, no
-        gradient) for ``"closure"``; empty otherwise.
+        objectives (about the reported ``c_1``), empty otherwise.
     """
     if kind == "closure":
-        value, delta, torque, warm = _closure(points, normals, mu, num_edges, iterations, best_effort, contact,
-                                              torsion, warm, weight)
-        return value, {"delta": delta, "torque": torque, "warm": warm}
+        value, delta, torque = _closure(points, normals, mu, num_edges, iterations, best_effort, contact, torsion)
+        return value, {"delta": delta, "torque": torque}
     if kind == "closure_any":
         points, normals = jnp.asarray(points), jnp.asarray(normals)
         n = points.shape[0]
         rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
         values, deltas, torques = jax.vmap(
-            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort, contact, torsion)[:3]
+            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort, contact, torsion)
         )(rolled)
         k = jnp.argmin(values)
         return values[k], {"delta": deltas[0], "torque": torques[0]}

@@ -39,7 +39,6 @@ from . import surfaces as _surfaces
 from ._api import _bind, _lp_columns, check_contact, evaluate
 from ._batch import map_grasps
 from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
-from ._lp import warm_weight
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
@@ -64,11 +63,6 @@ RESTART_WARMUP = 5
 #: on the host whatever its length: 1,024 starts x 20 steps as 20 one-step calls took 30 us per
 #: start and step, as two calls 21 us).
 SEGMENTS = 20
-#: Starts per vmapped block on a CPU (``_batch.map_grasps``: the first size the batch fills). A
-#: block of 512 streams each step's LPs (``_lp._stream``), which start warm from the step before
-#: (``objective_one``'s ``warm``): they then need 4-5 iterations on average but up to the budget
-#: (10), which a lock-step block would wait for.
-BLOCK = (512, 256)
 MIN_SEGMENT = 10
 #: A start has converged when its best objective rose by less than this over the last
 #: :data:`CONVERGED_WINDOW` of the steps.
@@ -237,7 +231,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     zeros = jnp.zeros((n, d), dtype)
     margin = tolerances(dtype).margin
 
-    def value(v, contacts, warm=None, weight=0.0):
+    def value(v, contacts):
         if kind == ROBUST:
             def closure(points, normals, mu_per_contact):
                 return objective_one(points, normals, mu_per_contact, num_edges, "closure", surface.center,
@@ -247,17 +241,13 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
             return mean, {}
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
         return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
-                             iterations, best_effort=True, contact=contact, torsion=torsion, warm=warm, weight=weight)
+                             iterations, best_effort=True, contact=contact, torsion=torsion)
 
     def step(carry, i):
-        contacts, opt_state, travel, best, best_value, best_q, warm, weight = carry
-        (val, mon), grad = jax.value_and_grad(value, has_aux=True)(zeros, contacts, warm, weight)
+        contacts, opt_state, travel, best, best_value, best_q = carry
+        (val, mon), grad = jax.value_and_grad(value, has_aux=True)(zeros, contacts)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         updates, new_opt = optimizer.update(-grad, opt_state, travel)
-        # The next step's LPs start from this step's solutions (``objective_one``'s ``warm``),
-        # weighted by how far the contacts move (``_lp.warm_weight``, in object radii).
-        warm = mon.pop("warm", None)
-        weight = warm_weight(jnp.max(jnp.abs(updates)))
         moved = jax.vmap(surface.retract)(contacts, updates * surface.scale)
         active = offset + i < total
         keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)
@@ -280,15 +270,11 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
         best_value = jnp.where(better, val, best_value)
         best_q = jnp.where(better, q, best_q)
         new = (moved, new_opt, travel + updates)
-        return (*keep(new, (contacts, opt_state, travel)), best, best_value, best_q, warm, weight), (val, q)
+        return (*keep(new, (contacts, opt_state, travel)), best, best_value, best_q), (val, q)
 
-    # A segment's first step starts its LPs cold (weight 0; the points are placeholders of the
-    # right shapes), the others warm from the step before.
-    warm = jax.eval_shape(lambda: value(zeros, contacts)[1].get("warm"))
-    warm = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), warm)
-    carry = (contacts, opt_state, travel, best, best_value, best_q, warm, jnp.zeros((), dtype))
+    carry = (contacts, opt_state, travel, best, best_value, best_q)
     carry, (values, qualities) = jax.lax.scan(step, carry, jnp.arange(length))
-    return tuple(jax.tree_util.tree_leaves(carry[:6])), values, qualities
+    return tuple(jax.tree_util.tree_leaves(carry)), values, qualities
 
 
 @functools.cache
@@ -524,7 +510,7 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
         bar = tqdm(total=steps, unit="step", desc=f"optimizing {starts:,} starts")
     for offset in segments:
         shared = (surface, mu, jnp.asarray(offset, jnp.int32), draws)
-        leaves, vals, qs = map_grasps(fn, tuple(leaves), shared, (starts,), block=BLOCK)
+        leaves, vals, qs = map_grasps(fn, tuple(leaves), shared, (starts,))
         leaves = list(leaves)
         values.append(np.asarray(vals))
         qualities.append(np.asarray(qs))

@@ -237,9 +237,7 @@ def test_optimize_for_robustness():
     kw = dict(init=init, fingers=2, mu=MU, steps=20, learning_rate=0.05)
     nominal = gj.optimize(rectangle, objective="closure", **kw)
     still = gj.optimize(rectangle, objective="robust", noise=gj.Noise(), **kw)
-    # (to the LP tolerance: "closure" starts each step's LPs warm from the step before, the robust
-    # objective cold; seen 2e-9 apart)
-    np.testing.assert_allclose(still.history, nominal.history, rtol=1e-8, atol=1e-15)
+    np.testing.assert_allclose(still.history, nominal.history, rtol=1e-12, atol=1e-15)
     noisy = gj.optimize(rectangle, objective="robust", noise=gj.Noise(position=0.05, normal=0.05, friction=(0.7, 1.0)),
                         robust_samples=4, **kw)
     assert np.isfinite(noisy.history).all() and np.all(noisy.objective >= noisy.history[:, 0])
