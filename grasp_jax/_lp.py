@@ -103,6 +103,11 @@ class _State(NamedTuple):
     attempt: jax.Array
     local: jax.Array
     broken: jax.Array
+    # The residuals of the iterate (``_residuals``): each step judges the iterate it makes
+    # (``_measured``) and the next step's direction starts from them.
+    rp: jax.Array
+    rd: jax.Array
+    aty: jax.Array
 
 
 def _cholesky(M: jax.Array, pivot_tol: float, huge: float) -> list[list[jax.Array]]:
@@ -168,6 +173,9 @@ def _init(lp: LP, scale=1.0) -> _State:
         attempt=jnp.zeros((), jnp.int32),
         local=jnp.zeros((), jnp.int32),
         broken=jnp.zeros((), bool),
+        rp=jnp.zeros(rows, dt),
+        rd=jnp.zeros(cols, dt),
+        aty=jnp.zeros(cols, dt),
     )
 
 
@@ -246,12 +254,7 @@ def _step(lp: LP, st: _State) -> _State:
     x, y, s, tau, kappa = st.x, st.y, st.s, st.tau, st.kappa
     n = x.shape[0]
 
-    rp, rd, aty = _residuals(lp, st)
-    optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
-    better = residual < st.best_residual
-    best_x = jnp.where(better, x / tau, st.best_x)
-    best_y = jnp.where(better, y / tau, st.best_y)
-    best_residual = jnp.where(better, residual, st.best_residual)
+    rp, rd = st.rp, st.rd
     rg = kappa + c @ x - b @ y
     mu = (x @ s + tau * kappa) / (n + 1)
 
@@ -317,22 +320,47 @@ def _step(lp: LP, st: _State) -> _State:
         kappa=kappa + alpha * dkappa,
         done=st.done,
         iterations=st.iterations + 1,
-        best_x=best_x,
-        best_y=best_y,
-        best_residual=best_residual,
+        best_x=st.best_x,
+        best_y=st.best_y,
+        best_residual=st.best_residual,
         attempt=st.attempt,
         local=st.local + 1,
         broken=st.broken,
+        rp=rp,
+        rd=rd,
+        aty=st.aty,
     )
     # Keep every quantity finite and positive even on a wild step; a frozen problem stays put.
     # The fraction-to-boundary rule keeps the iterate positive; only a non-finite direction
     # (a breakdown of the factorization) can spoil it.
     ok = jnp.isfinite(alpha * (jnp.sum(dx) + jnp.sum(dy) + jnp.sum(ds) + dtau + dkappa))
-    done = st.done | optimal | infeasible
-    keep = done | ~ok
+    keep = st.done | ~ok
     new = jax.tree_util.tree_map(lambda o, nw: jnp.where(keep, o, nw), st, new)
-    return new._replace(done=done | ~ok, broken=st.broken | (~done & ~ok),
-                        iterations=jnp.where(done, st.iterations, st.iterations + 1))
+    new = new._replace(done=st.done | ~ok, broken=st.broken | (~st.done & ~ok),
+                       iterations=jnp.where(st.done, st.iterations, st.iterations + 1))
+    # The new iterate judged at once (not at the start of the next step, which a finished problem
+    # would spend for nothing; a frozen one is judged again, unchanged).
+    return _measured(lp, new)
+
+
+def _measured(lp: LP, st: _State) -> _State:
+    """``st`` with the residuals of its iterate, done where that iterate is optimal or certified
+    infeasible (:func:`_measures`), and its best iterate updated."""
+    rp, rd, aty = _residuals(lp, st)
+    optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
+    better = ~st.done & (residual < st.best_residual)
+    return st._replace(
+        rp=rp, rd=rd, aty=aty, done=st.done | optimal | infeasible,
+        best_x=jnp.where(better, st.x / st.tau, st.best_x),
+        best_y=jnp.where(better, st.y / st.tau, st.best_y),
+        best_residual=jnp.where(better, residual, st.best_residual),
+    )
+
+
+def _with_residuals(lp: LP, st: _State) -> _State:
+    """``st`` with the residuals of its iterate (a starting point: judged by the first step)."""
+    rp, rd, aty = _residuals(lp, st)
+    return st._replace(rp=rp, rd=rd, aty=aty)
 
 
 def _restart(lp: LP, st: _State, iterations, factors: jax.Array, count, accept_near) -> _State:
@@ -341,12 +369,12 @@ def _restart(lp: LP, st: _State, iterations, factors: jax.Array, count, accept_n
     or when its best iterate is within ``near`` of the tolerance (``_finish`` accepts it), it is
     frozen."""
     tol = tolerances(lp.A.dtype)
-    # ``local > iterations``: the budget's last step is judged by the step after it.
+    # ``local > iterations``: an attempt takes ``iterations + 1`` steps (the loop's limit counts them).
     exhausted = st.broken | (~st.done & (st.local > iterations))
     near = st.best_residual <= tol.near * tol.lp
     again = exhausted & ~near & (st.attempt < count) & accept_near
     factor = jax.nn.one_hot(st.attempt, factors.shape[0], dtype=factors.dtype) @ factors
-    fresh = _init(lp, factor)._replace(iterations=st.iterations, attempt=st.attempt + 1)
+    fresh = _with_residuals(lp, _init(lp, factor)._replace(iterations=st.iterations, attempt=st.attempt + 1))
     st = jax.tree_util.tree_map(lambda old, new: jnp.where(again, new, old), st, fresh)
     return st._replace(done=st.done | (exhausted & ~again))
 
@@ -520,7 +548,7 @@ def _start(lp: LP, consistent: bool, warm, weight, skip) -> tuple[_State, tuple[
     check = (jnp.zeros((), bool), jnp.zeros_like(lp.b)) if consistent else _inconsistency(lp)
     # An inconsistent problem is certified before the first step and frozen (a skipped one too).
     st = _init(lp)._replace(done=check[0] | skip)
-    return (st if warm is None else _warm(st, warm, weight)), check
+    return _with_residuals(lp, st if warm is None else _warm(st, warm, weight)), check
 
 
 def _advance(lp: LP, st: _State, plan: _Plan) -> _State:
