@@ -107,7 +107,6 @@ class _State(NamedTuple):
     # (``_measured``) and the next step's direction starts from them.
     rp: jax.Array
     rd: jax.Array
-    aty: jax.Array
 
 
 def _cholesky(M: jax.Array, pivot_tol: float, huge: float) -> list[list[jax.Array]]:
@@ -175,7 +174,6 @@ def _init(lp: LP, scale=1.0) -> _State:
         broken=jnp.zeros((), bool),
         rp=jnp.zeros(rows, dt),
         rd=jnp.zeros(cols, dt),
-        aty=jnp.zeros(cols, dt),
     )
 
 
@@ -328,19 +326,17 @@ def _step(lp: LP, st: _State) -> _State:
         broken=st.broken,
         rp=rp,
         rd=rd,
-        aty=st.aty,
     )
     # Keep every quantity finite and positive even on a wild step; a frozen problem stays put.
     # The fraction-to-boundary rule keeps the iterate positive; only a non-finite direction
     # (a breakdown of the factorization) can spoil it.
     ok = jnp.isfinite(alpha * (jnp.sum(dx) + jnp.sum(dy) + jnp.sum(ds) + dtau + dkappa))
     keep = st.done | ~ok
-    new = jax.tree_util.tree_map(lambda o, nw: jnp.where(keep, o, nw), st, new)
-    new = new._replace(done=st.done | ~ok, broken=st.broken | (~st.done & ~ok),
-                       iterations=jnp.where(st.done, st.iterations, st.iterations + 1))
     # The new iterate judged at once (not at the start of the next step, which a finished problem
-    # would spend for nothing; a frozen one is judged again, unchanged).
-    return _measured(lp, new)
+    # would spend for nothing); a frozen problem keeps its state and its judgement.
+    new = jax.tree_util.tree_map(lambda o, nw: jnp.where(keep, o, nw), st, _measured(lp, new))
+    return new._replace(done=new.done | ~ok, broken=st.broken | (~st.done & ~ok),
+                        iterations=jnp.where(st.done, st.iterations, st.iterations + 1))
 
 
 def _measured(lp: LP, st: _State) -> _State:
@@ -350,7 +346,7 @@ def _measured(lp: LP, st: _State) -> _State:
     optimal, infeasible, residual = _measures(lp, st, rp, rd, aty)
     better = ~st.done & (residual < st.best_residual)
     return st._replace(
-        rp=rp, rd=rd, aty=aty, done=st.done | optimal | infeasible,
+        rp=rp, rd=rd, done=st.done | optimal | infeasible,
         best_x=jnp.where(better, st.x / st.tau, st.best_x),
         best_y=jnp.where(better, st.y / st.tau, st.best_y),
         best_residual=jnp.where(better, residual, st.best_residual),
@@ -359,8 +355,8 @@ def _measured(lp: LP, st: _State) -> _State:
 
 def _with_residuals(lp: LP, st: _State) -> _State:
     """``st`` with the residuals of its iterate (a starting point: judged by the first step)."""
-    rp, rd, aty = _residuals(lp, st)
-    return st._replace(rp=rp, rd=rd, aty=aty)
+    rp, rd, _ = _residuals(lp, st)
+    return st._replace(rp=rp, rd=rd)
 
 
 def _restart(lp: LP, st: _State, iterations, factors: jax.Array, count, accept_near) -> _State:
