@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _closure
-from ._api import _bind, _check_common, _passes, _unfinished, check_contact
+from ._api import MIN_WEIGHT_BLOCK, _bind, _check_common, _passes, _unfinished, check_contact
 from ._batch import Retry, Staged, map_grasps, pad_rows
 from ._cones import safe_normalize, tangent_frame
 from ._constants import DEFAULT_NUM_EDGES
@@ -711,7 +711,8 @@ def _label(perturber, *, quantile, torque_test, contact, torsion, margin, torque
             if margin:
                 l_star, open_ = np.zeros(g * samples, dtype), np.zeros(g * samples, bool)
                 if len(live):
-                    l_live, status = map_grasps(weight_fn, gathered, weight_shared, (len(live),))
+                    l_live, status = map_grasps(weight_fn, gathered, weight_shared, (len(live),),
+                                                block=MIN_WEIGHT_BLOCK)
                     l_star[live] = np.maximum(np.asarray(l_live), 0.0)
                     open_[live] = np.asarray(status) == Status.NOT_CONVERGED
                 l_star, open_ = l_star.reshape(g, samples), open_.reshape(g, samples)
