@@ -82,14 +82,14 @@ def _warn_unconverged(status, what: str):
 #: holds one such grasp all the restarts: 44.7k -> 29.2k float32 grasps/s on 100,000 sphere grasps.
 RETRY_RESTARTS = 2
 
-#: Blocks of :func:`min_weight`'s chunks (``_batch.map_grasps(block=)``). Its LP runs with the full
-#: budget in one pass, so a lock-step block of 256 runs as long as its slowest LP (about 15
-#: iterations against a mean of 8.5); in blocks of 1,024 the LPs stream through lanes
-#: (``_lp._stream``) with the same results. Measured (65,536 ellipsoid grasps, 4 fingers, 8 edges,
-#: two CPU devices): 84,335-85,428 grasps/s in blocks of 256, 93,457-96,288 in blocks of 1,024,
-#: 91,860-91,875 in 512, 95,643-96,459 in 2,048. A batch too small to fill 1,024 without padding
-#: runs in lock-step blocks of 256 (a second program).
-MIN_WEIGHT_BLOCK = (1024, 256)
+#: Grasps per block of :func:`min_weight`'s chunks (``_batch.map_grasps(block=)``). Its LP runs
+#: with the full budget in one pass, so a lock-step block of 256 runs as long as its slowest LP
+#: (about 15 iterations against a mean of 8.5); in blocks of 512 the LPs stream through lanes
+#: (``_lp._stream``), each taking its own iterations, with the same results. Measured (65,536
+#: ellipsoid grasps, 4 fingers, 8 edges, two CPU devices): 84,204-85,428 grasps/s in blocks of 256,
+#: 91,860-91,875 in 512, 93,183-96,288 in 1,024. One size for every batch (one compiled program
+#: per grasp shape): a call on one grasp then takes 11 ms instead of 7 (1,024: 22 ms).
+MIN_WEIGHT_BLOCK = 512
 
 
 def _restart_points(dtype) -> tuple[np.int32, np.int32]:
