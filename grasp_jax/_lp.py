@@ -354,7 +354,8 @@ def _measured(lp: LP, st: _State) -> _State:
 
 
 def _with_residuals(lp: LP, st: _State) -> _State:
-    """``st`` with the residuals of its iterate (a starting point: judged by the first step)."""
+    """``st`` with the residuals of its iterate, for the first step's direction (a starting point
+    is not judged: the first step's iterate is)."""
     rp, rd, _ = _residuals(lp, st)
     return st._replace(rp=rp, rd=rd)
 
