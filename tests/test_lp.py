@@ -347,7 +347,8 @@ def test_streamed_batch_equals_lock_step():
     kinds = [_feasible(rng) if k % 3 else _infeasible(rng) for k in range(n - 8)]
     kinds += [_rank_deficient(rng, "inconsistent") for _ in range(8)]
     A, b, c = (jnp.asarray(np.stack(x)) for x in zip(*kinds))
-    statuses = _stream_case(lambda A, b, c: solve(LP(A, b, c))[0], (A, b, c))[0].status
+    full_streamed, full_locked = _stream_case(lambda A, b, c: solve(LP(A, b, c))[0], (A, b, c))
+    statuses = full_streamed.status
     assert {Status.OPTIMAL, Status.INFEASIBLE} <= set(statuses.tolist())
     short, _ = _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4)[0], (A, b, c))
     assert np.any(short.status == Status.NOT_CONVERGED)
@@ -374,4 +375,10 @@ def test_streamed_batch_equals_lock_step():
     # the envelope gradient of the optimal values in c, streamed and in lock step
     total = lambda fn: jit(jax.grad(lambda c: jnp.sum(fn(A, b, c))))(c)  # noqa: E731
     value = lambda A, b, c: optimal_value(LP(A, b, c), solve(jax.lax.stop_gradient(LP(A, b, c)))[0])  # noqa: E731
-    np.testing.assert_allclose(total(jax.vmap(value)), total(_lock_step(value)), rtol=1e-9, atol=1e-10)
+    # (the gradient is the solution x: where a problem ended an iteration apart, which
+    # ``_stream_case`` allows on 1% of them, it is compared as x is there; seen under
+    # XLA_FLAGS=--xla_cpu_max_isa=AVX2, one problem of 512, 2.5e-10 apart, 1.8e-11 elsewhere)
+    grad_streamed, grad_locked = total(jax.vmap(value)), total(_lock_step(value))
+    same = full_streamed.iterations == full_locked.iterations
+    np.testing.assert_allclose(grad_streamed[same], grad_locked[same], rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(grad_streamed[~same], grad_locked[~same], rtol=1e-7, atol=1e-7)
