@@ -13,17 +13,16 @@ in float32, traced inputs in the tracers' dtype: the rules are in ``grasp_jax._p
 
 from ._api import critical_friction as critical_friction
 from ._api import evaluate as evaluate
-from ._api import friction_label as friction_label
 from ._api import force_closure as force_closure
+from ._api import friction_label as friction_label
 from ._api import min_weight as min_weight
 from ._api import quality as quality
 from ._baseline import ferrari_canny as ferrari_canny
+from ._cones import cone_edges as _cone_edges  # noqa: F401
 from ._contact import CONTACTS as CONTACTS
 from ._contact import dexnet_torsion as dexnet_torsion
 from ._contact import patch_torsion as patch_torsion
 from ._friction import FrictionStatus as FrictionStatus
-from ._cones import cone_edges as _cone_edges  # noqa: F401
-from ._lp import Status as Status
 from ._objectives import OBJECTIVES as OBJECTIVES
 from ._objectives import objective as objective
 from ._optimize import EndReason as EndReason
@@ -36,6 +35,7 @@ from ._robust import perturb as perturb
 from ._robust import robust as robust
 from ._wrench import CentralAxis as CentralAxis
 from ._wrench import central_axis as central_axis
+from .lp import Status as Status
 
 __version__ = "0.1.0"
 

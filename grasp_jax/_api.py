@@ -12,13 +12,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _closure, _friction
-from ._contact import CONTACTS, columns_per_contact
 from ._batch import Retry, Staged, map_grasps
 from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterations, tolerances
-from ._lp import Status
+from ._contact import CONTACTS, columns_per_contact
 from ._precision import scope_for
 from ._result import GraspEvaluation
 from ._validate import check_grasps, check_int, check_num_edges, check_scalar, is_traced
+from .lp import Status
 
 _TORQUE_TESTS = ("exact", "paper")
 
@@ -65,7 +65,7 @@ def _as_traced(*arrays):
 def _warn_unconverged(status, what: str):
     if is_traced(status):
         return
-    bad = int(np.sum(np.asarray(status) == 2))
+    bad = int(np.sum(np.asarray(status) == Status.NOT_CONVERGED))
     if bad:
         warnings.warn(
             f"{bad} of {np.size(status)} {what} did not converge in the iteration budget; their "
@@ -85,7 +85,7 @@ RETRY_RESTARTS = 2
 #: Grasps per block of :func:`min_weight`'s chunks (``_batch.map_grasps(block=)``). Its LP runs
 #: with the full budget in one pass, so a lock-step block of 256 runs as long as its slowest LP
 #: (about 15 iterations against a mean of 8.5); in blocks of 512 the LPs stream through lanes
-#: (``_lp._stream``), each taking its own iterations, with the same results. Measured (65,536
+#: (``lp._stream``), each taking its own iterations, with the same results. Measured (65,536
 #: ellipsoid grasps, 4 fingers, 8 edges, two CPU devices): 84,204-85,428 grasps/s in blocks of 256,
 #: 91,860-91,875 in 512, 93,183-96,288 in 1,024. One size for every batch (one compiled program
 #: per grasp shape): a call on one grasp then takes 11 ms instead of 7 (1,024: 22 ms).

@@ -7,8 +7,8 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from . import reference
-from ._constants import DEFAULT_NUM_EDGES
 from ._api import check_contact
+from ._constants import DEFAULT_NUM_EDGES
 from ._validate import check_grasps, check_num_edges, check_scalar, is_traced
 
 

@@ -444,7 +444,7 @@ def map_grasps(
             until its slowest grasp is done, so a function whose loops vary much from grasp to
             grasp (the critical friction search) wants smaller blocks; or a tuple of sizes, largest
             first: the largest that the batch fills (:func:`_pick_block`), so that a block of
-            :data:`grasp_jax._lp.STREAM_MIN` or more streams its LPs (``_lp._stream``) where the
+            :data:`grasp_jax.lp.STREAM_MIN` or more streams its LPs (``lp._stream``) where the
             batch is large, without padding a small one to it. Ignored on accelerators.
 
     Returns:

@@ -30,11 +30,23 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._crossover import SENSITIVE, as_solution, polish, sensitivity, stacked
-from ._lp import LP, LPSolution, Status, has_value, optimal_value, solve, warm_point
-from ._result import GraspEvaluation
 from ._contact import Columns, columns, wrench_columns
+from ._result import GraspEvaluation
 from ._wrench import cross
+from .lp import (
+    LP,
+    SENSITIVE,
+    LPSolution,
+    Status,
+    as_solution,
+    has_value,
+    optimal_value,
+    polish,
+    sensitivity,
+    solve,
+    stacked,
+    warm_point,
+)
 
 
 def _arm_scale(points: jax.Array) -> jax.Array:
@@ -288,7 +300,7 @@ def _half_space_quality_lp(q_lp: LP, u: jax.Array) -> tuple[LP, jax.Array]:
 
     Then ``sum a_ij tau_ij = 0`` forces ``a_ij = 0`` on every column off the plane ``u . tau = 0``,
     and the LP is degenerate: its optimal bases have condition ~1e5 in float32 and are not
-    certified (``_crossover.CONDITION``). Here those columns are removed (zeroed), the torque rows
+    certified (``lp._crossover.CONDITION``). Here those columns are removed (zeroed), the torque rows
     are rotated to ``(u, v1, v2)`` and the ``u`` row, now empty up to rounding, fixes the appended
     column at 1. Returns ``(lp, rotation)``.
     """
@@ -620,7 +632,7 @@ def evaluate_one(
         torque_test: ``"exact"`` (default) or ``"paper"`` (eq. 15 / 21).
         tangents: optional ``(n, 3)`` first tangent of each 3D contact frame.
         iterations: interior-point iterations (default from the problem size).
-        restarts: float32 starting points an unfinished LP runs from (``_lp.solve``; default all).
+        restarts: float32 starting points an unfinished LP runs from (``lp.solve``; default all).
         contact, torsion: the contact model (``_contact``) and its torsional coefficient.
     """
     tol = tolerances(points.dtype)
@@ -746,13 +758,13 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
     ``l*`` is 0 when the vectors are rank deficient and ``-inf`` when the LP is infeasible. Its
     derivatives come from the envelope theorem on the LP's primal-dual pair (no iteration is
     differentiated), finite everywhere, zero where the value is a constant (0 or ``-inf``).
-    ``best_effort``: see :func:`grasp_jax._lp.solve` (an unfinished LP gives its best iterate's value).
+    ``best_effort``: see :func:`grasp_jax.lp.solve` (an unfinished LP gives its best iterate's value).
     ``full``: whether the vectors span R^D, where the caller knows it (no rank test here).
     ``pivots``: crossover pivots to a certified vertex (default ``tolerances(dtype).crossover``:
     none in float64, where the interior-point value is accurate to about 1e-8).
-    ``warm, weight``: a warm start (:func:`grasp_jax._lp.solve`); ``solution``: also return the
-    solution's :func:`grasp_jax._lp.warm_point`, to warm-start a nearby LP from. ``skip``: as
-    :func:`grasp_jax._lp.solve` (the result is then meaningless).
+    ``warm, weight``: a warm start (:func:`grasp_jax.lp.solve`); ``solution``: also return the
+    solution's :func:`grasp_jax.lp.warm_point`, to warm-start a nearby LP from. ``skip``: as
+    :func:`grasp_jax.lp.solve` (the result is then meaningless).
     """
     lp = min_weight_lp(vectors)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, best_effort=best_effort,

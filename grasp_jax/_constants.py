@@ -47,12 +47,12 @@ class Tolerances:
         rank: relative eigenvalue below which a Gram matrix of wrenches counts as rank deficient.
         pivot: relative Cholesky pivot below which a direction counts as degenerate.
         tiny: lengths below this are treated as zero (normalization guards).
-        refine: steps of iterative refinement of each interior-point direction (``_lp._step``).
+        refine: steps of iterative refinement of each interior-point direction (``lp._step``).
         near: after the full budget, an unfinished LP whose best iterate is within ``near`` times
             ``lp`` counts as optimal there; so does an ill-posed one (tau, kappa -> 0) at the end.
         step: fraction of the step to the boundary the interior-point method takes.
         restarts: with the full budget, problems left unfinished start again from
-            ``x = s = factor`` for each factor in turn (``_lp.solve``).
+            ``x = s = factor`` for each factor in turn (``lp.solve``).
         crossover: most simplex pivots from the interior-point solution to a certified optimal
             vertex (``_crossover``), with the full budget; 0: none.
         crossover_short: the same after a short budget (the first pass of ``_batch.Retry``), where

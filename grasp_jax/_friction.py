@@ -49,8 +49,8 @@ searches short, since every grasp of a block waits for them: where ``l*`` is fla
 the side they fell on. (Random 4-finger grasps: the slowest of a block of 256 took 20 steps on
 average before them, 12 with them; one search in 4,096 still takes 23.)
 
-Each step's LP starts warm (``_lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
-step's solution, weighted by how far ``mu`` moved (``_lp.WARM``); a Newton step that moves ``mu``
+Each step's LP starts warm (``lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
+step's solution, weighted by how far ``mu`` moved (``lp.WARM``); a Newton step that moves ``mu``
 by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second
 stage of a pass resumes from that solution too (it is part of the search's full state); a batch's
 second pass resumes from the bracket alone (:data:`RESUME`), its first LP cold.
@@ -67,7 +67,6 @@ about).
 
 from __future__ import annotations
 
-import enum
 from functools import partial
 
 import jax
@@ -75,9 +74,10 @@ import jax.numpy as jnp
 
 from ._closure import _gram_rank3, full_rank, min_weight_lp, min_weight_value
 from ._cones import cone_edges, safe_normalize
-from ._contact import columns_per_contact, wrench_columns
 from ._constants import default_iterations, tolerances
-from ._lp import Status, warm_weight
+from ._contact import columns_per_contact, wrench_columns
+from ._status import StatusEnum
+from .lp import Status, warm_weight
 
 #: Relative accuracy of ``mu*`` in float64 (the final bracket's width over its upper end).
 RTOL = 1e-6
@@ -121,7 +121,7 @@ DEFAULT_CAP = 4.0
 ATOL = 1e-9
 #: Longest step back from the root of ``l* = threshold`` to that of ``l* = 0``, relative to ``mu*``.
 BACK = 1e-3
-#: Crossover pivots after each interior-point solve (``_crossover.polish``): none. Measured against
+#: Crossover pivots after each interior-point solve (``lp._crossover.polish``): none. Measured against
 #: bisection of HiGHS (tight tolerances) on 1,200 grasps: the crossover's feasibility tolerance
 #: (1e-6, set for float32) certified vertices whose margin was 1e-8 too high where ``l*`` is 0 on an
 #: interval of ``mu`` (a hard 3-finger cylinder grasp: ``mu*`` 1.596 for 2.110), and cost 2.5x the
@@ -129,19 +129,19 @@ BACK = 1e-3
 CROSSOVER = 0
 
 
-class FrictionStatus(enum.IntEnum):
+class FrictionStatus(StatusEnum):
     """Outcome of a critical friction search (``int8`` per grasp)."""
 
     #: ``mu*`` found to the relative accuracy :data:`RTOL` (float32: :data:`RTOL_FLOAT32`).
-    FOUND = 0
+    FOUND = 0, "critical friction found"
     #: Not force-closure at the cap (or never: wrenches that do not span the wrench space):
     #: ``mu* = inf``.
-    ABOVE_CAP = 1
+    ABOVE_CAP = 1, "not force-closure at the friction cap"
     #: Force-closure without friction (``l*(0) > 0``: in 3D at least 7 hard contacts): ``mu* = 0``.
-    FRICTIONLESS = 2
+    FRICTIONLESS = 2, "force-closure without friction"
     #: An LP did not converge, or the bracket was not narrowed in :data:`MAX_STEPS` steps:
     #: ``mu*`` is the bracket's upper end, force-closure but maybe too large.
-    NOT_CONVERGED = 3
+    NOT_CONVERGED = 3, "not converged: the bracket's upper end is reported"
 
 
 def rtol_for(dtype) -> float:
@@ -183,8 +183,8 @@ def _margin(points, normals, mu, torsion, *, num_edges, contact, tangents, itera
     """``(l*, status)`` of the min-weight LP at friction ``mu``, taking the wrenches' span as full
     (the caller checks it once: it does not depend on ``mu > 0``). The interior-point value, good
     to about 1e-8 where the LP is degenerate near the root (:data:`CROSSOVER`). ``warm, weight``:
-    a warm start from a nearby step's LP; ``solution``: also this LP's ``_lp.warm_point``; ``skip``:
-    not solved (``_lp.solve``; a finished search's step under ``vmap``)."""
+    a warm start from a nearby step's LP; ``solution``: also this LP's ``lp.warm_point``; ``skip``:
+    not solved (``lp.solve``; a finished search's step under ``vmap``)."""
     vectors = _wrenches(points, normals, mu, num_edges, contact, torsion, tangents)
     return min_weight_value(vectors, iterations, full=True, pivots=CROSSOVER, warm=warm, weight=weight,
                             solution=solution, skip=skip)
@@ -208,8 +208,8 @@ RESUME = 8
 
 #: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``, the first size the batch
 #: fills; ``evaluate``'s is 256). In a block of 512 the LPs of each step are streamed through
-#: ``_lp.LANES`` lanes (``_lp._stream``), each taking the iterations it needs, and a finished
-#: search's LP takes none (``skip``); in a block below ``_lp.STREAM_MIN`` every LP waits for the
+#: ``lp.LANES`` lanes (``lp._stream``), each taking the iterations it needs, and a finished
+#: search's LP takes none (``skip``); in a block below ``lp.STREAM_MIN`` every LP waits for the
 #: block's slowest, and warm-started LPs vary much (mean 3-5 iterations, the slowest of 256 8-11),
 #: so small blocks: 8,192 ellipsoid grasps, 4 hard fingers, best of 3 alternating calls, 1/5.3 of
 #: ``evaluate`` in blocks of 512 (1/5.4 at 1,024, 1/6.7 at 2,048: the block's slowest search sets
@@ -351,7 +351,7 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
         known_last = last > 0
         weight = jnp.where(known_last, warm_weight(jnp.abs(x - last) / jnp.where(known_last, last, 1.0)), 0.0)
         # Under vmap the body runs for every grasp of the block; a finished search's LP is skipped
-        # (its result is discarded), so that a streamed solve (``_lp._stream``) gives it no lane.
+        # (its result is discarded), so that a streamed solve (``lp._stream``) gives it no lane.
         fx, dx, bad_x, sol_x = value_and_slope(x, warm=warm, weight=weight, skip=~cond(s))
         # An LP that did not converge (near the friction at which the LP turns infeasible, say)
         # proves nothing: x is not taken as force-closure, and becomes a lower end on credit

@@ -53,12 +53,12 @@ import jax.numpy as jnp
 from ._api import _bind, _check_common, check_contact
 from ._batch import map_grasps
 from ._closure import SHIFT, _exact_torque_2d, about_first, min_weight_value, quality_lp
-from ._contact import wrench_columns
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
-from ._lp import Status, has_value, optimal_value, solve
+from ._contact import wrench_columns
 from ._validate import check_scalar
 from ._wrench import cross
+from .lp import Status, has_value, optimal_value, solve
 
 #: Objectives :func:`objective_one` knows, in the order of the module docstring.
 OBJECTIVES: tuple[str, ...] = ("closure", "closure_any", "min_weight", "signed_q", "friction", "dfc", "dfc_eig")
@@ -85,7 +85,7 @@ def signed_quality(cols, edges, iterations=None, best_effort: bool = False) -> j
     Args:
         cols: the grasp's wrench columns about ``c_1`` (``_closure.about_first``); edges:
             ``(n, m, d)`` cone edges (:func:`cone_edges`).
-        iterations, best_effort: as :func:`grasp_jax._lp.solve`."""
+        iterations, best_effort: as :func:`grasp_jax.lp.solve`."""
     lp = quality_lp(cols, edges)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, best_effort=best_effort)
     return jnp.where(has_value(sol), -optimal_value(lp, sol) - SHIFT, 0.0)
@@ -156,7 +156,7 @@ def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale,
             energies take torques about ``center`` in units of ``scale``).
         iterations: interior-point iterations (default from the LP size).
         best_effort: LPs unfinished after ``iterations`` give their best iterate's value (see
-            :func:`grasp_jax._lp.solve`): what ``gj.optimize`` uses, with a short budget.
+            :func:`grasp_jax.lp.solve`): what ``gj.optimize`` uses, with a short budget.
         contact, torsion: the contact model (``_contact``); the DFC energies ignore it.
 
     Returns:

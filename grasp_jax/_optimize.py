@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import enum
 import functools
 import math
 import time
@@ -42,6 +41,7 @@ from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
+from ._status import StatusEnum
 from ._validate import check_int, check_key, check_num_edges, check_scalar
 
 #: Default peak learning rates of Adam, in object radii per step: from random starts (the smallest
@@ -77,20 +77,12 @@ _CLOSURE_KINDS = ("closure", "closure_any")
 ROBUST = "robust"
 
 
-class EndReason(enum.IntEnum):
+class EndReason(StatusEnum):
     """Why a start ended where it did (stored per start as ``int8``)."""
 
-    FORCE_CLOSURE = 0
-    CONVERGED = 1
-    NOT_CONVERGED = 2
-
-    @property
-    def message(self) -> str:
-        return {
-            EndReason.FORCE_CLOSURE: "force-closure reached",
-            EndReason.CONVERGED: "converged below force-closure",
-            EndReason.NOT_CONVERGED: "not converged in the step budget",
-        }[self]
+    FORCE_CLOSURE = 0, "force-closure reached"
+    CONVERGED = 1, "converged below force-closure"
+    NOT_CONVERGED = 2, "not converged in the step budget"
 
 
 @jax.tree_util.register_dataclass
@@ -415,7 +407,7 @@ def optimize(
         ValueError / TypeError: bad arguments, said in one sentence before anything is computed.
     """
     t0 = time.perf_counter()
-    surface = _surface(obj, normals)
+    surface = _surfaces.as_surface(obj, normals)
     fingers = check_int("fingers", fingers, 2)
     steps = check_int("steps", steps)
     mu = check_scalar("mu", mu)
@@ -543,17 +535,6 @@ def _end_reasons(force_closure: np.ndarray, history: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------
 # Checks of user input.
-
-
-def _surface(obj, normals: str):
-    if isinstance(obj, _surfaces.Surface) and not hasattr(obj, "sample_surface"):
-        return obj
-    if normals not in ("smooth", "flat"):
-        raise ValueError(f"normals must be 'smooth' or 'flat'; got {normals!r}")
-    if obj is None or not hasattr(obj, "dim"):
-        raise ValueError(f"obj must be an object of grasp_jax.objects (for example grasp_jax.objects.load('glass')) "
-                         f"or a grasp_jax.surfaces.Surface; got {type(obj).__name__}")
-    return _surfaces.for_object(obj, normals=normals)
 
 
 def _check_dtype(dtype):

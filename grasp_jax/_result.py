@@ -7,6 +7,8 @@ import dataclasses
 import jax
 import numpy as np
 
+from .lp import Status
+
 
 def _traced(*xs) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in xs)
@@ -62,9 +64,10 @@ class GraspEvaluation:
     def converged(self):
         """``B`` bool: every LP of the grasp ended optimal or certified (status not NOT_CONVERGED).
         A NumPy array for concrete results, a JAX array under a transformation."""
+        unfinished = Status.NOT_CONVERGED
         if _traced(self.quality_status, self.torque_status):
-            return (self.quality_status != 2) & (self.torque_status != 2)
-        return (np.asarray(self.quality_status) != 2) & (np.asarray(self.torque_status) != 2)
+            return (self.quality_status != unfinished) & (self.torque_status != unfinished)
+        return (np.asarray(self.quality_status) != unfinished) & (np.asarray(self.torque_status) != unfinished)
 
     def __repr__(self) -> str:
         """A short summary, e.g. ``GraspEvaluation(batch=(1000,), force_closure 61.2%, Q median

@@ -47,8 +47,9 @@ from ._api import MIN_WEIGHT_BLOCK, _bind, _check_common, _passes, _unfinished, 
 from ._batch import Retry, Staged, map_grasps, pad_rows
 from ._cones import safe_normalize, tangent_frame
 from ._constants import DEFAULT_NUM_EDGES
-from ._lp import Status
 from ._validate import check_int, check_key, check_scalar, is_traced
+from .lp import Status
+from .surfaces import as_surface
 
 #: Perturbed grasps (grasps x samples) scored per slice: memory is set by this, not by the batch.
 ROWS = 65536
@@ -470,9 +471,7 @@ class _Perturber:
             if obj is None:
                 raise ValueError(f"{noise} moves contacts over the object: pass the object (or its surface), "
                                  "not None")
-            from ._optimize import _surface
-
-            self.surface = _surface(obj, normal_kind)
+            self.surface = as_surface(obj, normal_kind)
             if self.surface.dim != d:
                 raise ValueError(f"the object is {self.surface.dim}D but the grasps are {d}D")
         self.scale = 1.0 if self.surface is None else float(self.surface.scale)

@@ -7,6 +7,8 @@ benchmarks time them as the baseline. They are slow (milliseconds per grasp).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linprog
 
@@ -183,3 +185,60 @@ def torque_span_highs(points, normals, mu, num_edges=8, tangents=None, contact="
     res = linprog(c, A_ub=A_ub, b_ub=np.zeros(K), A_eq=A_eq, b_eq=b_eq,
                   bounds=[(None, None)] * (K + 1), method="highs")
     return bool(res.status == 0 and -res.fun > 1e-9)
+
+
+def _column_owner(n: int, m: int, contact: str, d: int) -> np.ndarray:
+    """The contact each column of :func:`grasp_jax.reference.wrenches` belongs to."""
+    per = 2 if d == 2 else m
+    if contact == "soft":
+        return np.repeat(np.arange(n), 2 * per)
+    owner = np.repeat(np.arange(n), per)
+    if contact == "dexnet-soft":
+        owner = np.concatenate([owner, np.repeat(np.arange(n), 2)])
+    return owner
+
+
+def balancing_axis(points, normals, *, mu, num_edges=8, contact="hard", torsion=None):
+    """The central axis ``Delta_r*`` of one grasp, or ``None`` where the quality LP has no optimum
+    with a non-zero force: at the optimum of the quality LP (HiGHS on :func:`wrenches`), the wrench
+    of contacts ``2..n`` balances a force of contact 1 inside its cone (Proposition 1 of the
+    paper); its central axis passes through ``c_1``.
+
+    Returns:
+        ``(point (d,), direction (d,))``: a point of the axis (the one nearest ``c_1``) and its unit
+        direction, the direction of the force of contacts ``2..n``.
+    """
+    normals = np.asarray(normals, float)
+    points, normals = np.asarray(points, float), normals / np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-300)
+    n, d = points.shape
+    torsion = 0.0 if torsion is None else float(torsion)
+    contact = contact or "hard"
+    try:
+        W = wrenches(points, normals, mu, num_edges, points[0], 1.0, None, contact, torsion)
+    except Exception:  # noqa: BLE001 - a model the reference does not know: no axis
+        return None
+    z1 = -normals[0]
+    A = np.concatenate([W.T, np.concatenate([z1, np.zeros(W.shape[1] - d)])[:, None]], axis=1)
+    K = W.shape[0]
+    A_eq = np.vstack([A, np.concatenate([np.ones(K), [0.0]])])
+    b_eq = np.zeros(len(A_eq))
+    b_eq[-1] = 1.0
+    c = np.zeros(K + 1)
+    c[-1] = -1.0
+    res = linprog(c, A_eq=A_eq, b_eq=b_eq, bounds=(0, None), method="highs")
+    if res.status != 0 or -res.fun <= 0:
+        return None
+    a = res.x[:K]
+    owner = _column_owner(n, int(num_edges), contact, d)
+    if len(owner) != K:
+        return None
+    w = (a * (owner > 0)) @ W  # the wrench of contacts 2..n, torque about c_1
+    f, tau = w[:d], w[d:]
+    f2 = float(f @ f)
+    if f2 <= 1e-24 * max(float(tau @ tau), 1e-300):
+        return None
+    if d == 3:
+        offset = np.cross(f, tau) / f2
+    else:
+        offset = np.array([f[1] * tau[0], -f[0] * tau[0]]) / f2
+    return points[0] + offset, f / math.sqrt(f2)

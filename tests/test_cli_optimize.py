@@ -229,7 +229,9 @@ def test_plot_optimization_draws_curves_beside_random_grasps(tmp_path):
     labels = fig.axes[0].get_legend_handles_labels()[1]
     assert "median over starts" in labels and "best of 40 random grasps" in labels
     assert (tmp_path / "f.png").stat().st_size > 5_000
-    plotting._pyplot().close(fig)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
     with pytest.raises(ValueError, match="starts, steps"):
         plotting.plot_optimization(np.zeros(5))
     with pytest.raises(ValueError, match="geometry"):

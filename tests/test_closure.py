@@ -425,7 +425,8 @@ def test_wandering_iterates_end_at_the_best_one():
 
 @jit
 def _quality_bounds(p, n, noise):
-    from grasp_jax import _closure, _lp
+    from grasp_jax import _closure
+    from grasp_jax import lp as _lp
     from grasp_jax._cones import cone_edges, safe_normalize
 
     def one(p, n, e):

@@ -12,8 +12,8 @@ from scipy.optimize import linprog
 
 from grasp_jax._closure import SHIFT, about_first, quality_lp
 from grasp_jax._cones import cone_edges
-from grasp_jax._crossover import FEASIBILITY, _inverse, crossover, polish
-from grasp_jax._lp import LP, LPSolution, Status, solve
+from grasp_jax.lp._crossover import FEASIBILITY, _inverse, crossover, polish
+from grasp_jax.lp import LP, LPSolution, Status, solve
 
 from _grasps import MU, grasps, sample_sphere
 from _jit import jit

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from grasp_jax._lp import LP, Status, optimal_value, solve, warm_point
+from grasp_jax.lp import LP, Status, optimal_value, solve, warm_point
 
 from _jit import jit
 
@@ -340,7 +340,7 @@ def test_streamed_batch_equals_lock_step():
     (``_lp._stream``): every problem gets the iterations, status and solution it gets in lock step
     (feasible, infeasible, inconsistent; full and short budgets, best effort, a traced budget, warm
     starts with per-problem weights, skipped problems, float32 restarts), and the envelope gradient."""
-    from grasp_jax import _lp
+    from grasp_jax.lp import _stream as _lp
 
     rng = np.random.default_rng(11)
     n = _lp.STREAM_MIN

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
+from .._status import StatusEnum
 
-class JawStatus(enum.IntEnum):
+
+class JawStatus(StatusEnum):
     """Why a parallel-jaw grasp has (or has not) two contacts (``int8`` per grasp).
 
     Rows that are not ``OK`` are never force-closure: :func:`grasp_jax.grippers.score_grasps` and
@@ -16,29 +17,15 @@ class JawStatus(enum.IntEnum):
     """
 
     #: Two contacts: each jaw met the surface between the open jaws, from outside the object.
-    OK = 0
+    OK = 0, "two contacts"
     #: The closing line meets the mesh fewer than twice, or not between the open jaws.
-    MISSED = 1
+    MISSED = 1, "the closing line meets the object fewer than twice between the open jaws"
     #: The object extends beyond the opening: a jaw starts inside the material.
-    TOO_WIDE = 2
+    TOO_WIDE = 2, "the object extends beyond the opening (a jaw starts inside it)"
     #: The gripper body (finger boxes or palm) intersects the object (``collision=True`` only).
-    COLLISION = 3
+    COLLISION = 3, "the gripper body intersects the object"
     #: The contacts are closer than the gripper's ``min_width``: the jaws stop before touching.
-    TOO_NARROW = 4
-
-    @property
-    def message(self) -> str:
-        """One sentence saying what the status means."""
-        return _MESSAGES[self]
-
-
-_MESSAGES = {
-    JawStatus.OK: "two contacts",
-    JawStatus.MISSED: "the closing line meets the object fewer than twice between the open jaws",
-    JawStatus.TOO_WIDE: "the object extends beyond the opening (a jaw starts inside it)",
-    JawStatus.COLLISION: "the gripper body intersects the object",
-    JawStatus.TOO_NARROW: "the contacts are closer than the gripper's smallest opening",
-}
+    TOO_NARROW = 4, "the contacts are closer than the gripper's smallest opening"
 
 
 def _box(name: str, value) -> tuple[float, float, float] | None:

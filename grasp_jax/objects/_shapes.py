@@ -13,6 +13,7 @@ import math
 import numpy as np
 import trimesh
 
+from ..surfaces import _analytic
 from ._base import ObjectError, Picker, check_count, unit
 
 
@@ -100,9 +101,11 @@ class Sphere(_Analytic):
         self.radius, self.name = float(radius), name
 
     def project(self, points):
-        from ..surfaces import _analytic  # the one implementation, in JAX
-
         return _analytic.project(_analytic.sphere_map, points, self.radius)
+
+    def exact_surface(self):
+        """The :class:`~grasp_jax.surfaces.Surface` of the exact shape (exact normals)."""
+        return _analytic.for_sphere(self)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""
@@ -122,9 +125,11 @@ class Ellipsoid(_Analytic):
         self.radius, self.name = float(self.axes.max()), name
 
     def project(self, points):
-        from ..surfaces import _analytic  # the one implementation, in JAX
-
         return _analytic.project(_analytic.ellipsoid_map, points, self.axes)
+
+    def exact_surface(self):
+        """The :class:`~grasp_jax.surfaces.Surface` of the exact shape (exact normals)."""
+        return _analytic.for_ellipsoid(self)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area (rejection from the sphere map) and outward unit
@@ -154,9 +159,11 @@ class Box(_Analytic):
         self.radius, self.name = float(np.linalg.norm(self.extents) / 2), name
 
     def project(self, points):
-        from ..surfaces import _analytic  # the one implementation, in JAX
-
         return _analytic.project(_analytic.box_map, points, self.extents / 2)
+
+    def exact_surface(self):
+        """The :class:`~grasp_jax.surfaces.Surface` of the exact shape (exact normals)."""
+        return _analytic.for_box(self)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""
@@ -190,9 +197,11 @@ class Cylinder(_Analytic):
         self.radius = math.hypot(self.section_radius, self.height / 2)
 
     def project(self, points):
-        from ..surfaces import _analytic  # the one implementation, in JAX
-
         return _analytic.project(_analytic.cylinder_map, points, self.section_radius, self.height / 2)
+
+    def exact_surface(self):
+        """The :class:`~grasp_jax.surfaces.Surface` of the exact shape (exact normals)."""
+        return _analytic.for_cylinder(self)
 
     def sample_surface(self, count: int, rng: np.random.Generator):
         """``count`` points uniform by area and outward unit normals, ``(count, 3) float`` each."""

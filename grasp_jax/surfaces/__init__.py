@@ -18,6 +18,7 @@ from ._analytic import SphereSurface as SphereSurface
 from ._base import Contact as Contact
 from ._base import Surface as Surface
 from ._for_object import CREASE_ANGLE as CREASE_ANGLE
+from ._for_object import as_surface as as_surface
 from ._for_object import for_object as for_object
 from ._simplicial import SimplicialSurface as SimplicialSurface
 from ._simplicial import from_simplices as from_simplices
@@ -31,6 +32,7 @@ __all__ = [
     "SimplicialSurface",
     "SphereSurface",
     "Surface",
+    "as_surface",
     "for_object",
     "from_simplices",
 ]

@@ -447,13 +447,11 @@ def for_polygon(obj, *, normals: str = "smooth", crease_angle: float = 45.0,
                 max_crossings: int = MAX_CROSSINGS) -> SimplicialSurface:
     """The boundary of a :class:`grasp_jax.objects.Polygon`: its rings' edges, in the order and
     with the outward normals of the polygon's own facets."""
-    from ..objects._polygon import _edge_normals, _ring_edges
-
     rings = [np.asarray(r, float) for r in obj.rings]
     offsets = np.cumsum([0] + [len(r) for r in rings])
     faces = np.concatenate([np.stack([o + np.arange(len(r)), o + (np.arange(len(r)) + 1) % len(r)], 1)
                             for o, r in zip(offsets, rings)])
-    start, end = _ring_edges(rings)
-    return from_simplices(np.concatenate(rings), faces, _edge_normals(start, end), center=obj.center,
+    _, edge_normals = obj.facets()  # one per edge, in the rings' order
+    return from_simplices(np.concatenate(rings), faces, np.asarray(edge_normals, float), center=obj.center,
                           scale=float(obj.radius), normal_kind=normals, crease_angle=crease_angle,
                           max_crossings=max_crossings)

@@ -46,7 +46,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ._lp import Status
+from ._problem import Status
 
 #: A column enters the initial basis only if its component orthogonal to the columns already
 #: chosen is at least this fraction of its length (0.1 rejected neighbouring cone edges, which the
