@@ -1,0 +1,199 @@
+"""A hand's collision geometry sampled for the optimizer: fingers, spheres, contact candidates.
+
+* fingers: the leaf links reached through a moving joint; a finger's distal body is the link of
+  its last moving joint with the links fixed to it;
+* which way a joint closes: towards its larger limit (from 0, or the middle of the range);
+* collision spheres: inside each link's collision surface, touching it, spread by farthest-point
+  sampling;
+* contact candidates: points of the distal body's surface whose outward normal faces the flexion
+  direction of the finger's last joint, a few per finger;
+* the palm frame: centre, normal (where the fingers close to) and the fingers' direction.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import trimesh
+
+from ._hand import FIXED, Collision
+
+#: Surface samples drawn per link (spheres) and per distal body (candidates).
+SAMPLES = 600
+#: Largest collision-sphere radius (m) and spheres per link at most.
+MAX_RADIUS = 0.012
+SPHERES_PER_LINK = 12
+#: Contact candidates per finger, and the cosine between a candidate's normal and the flexion
+#: direction above which a surface point counts as palm-facing.
+CANDIDATES = 4
+FACING_COS = 0.6
+
+
+@functools.cache
+def _mesh_file(filename: str) -> trimesh.Trimesh:
+    loaded = trimesh.load(filename, force="mesh")
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f"{filename}: a hand collision mesh with no triangles")
+    return loaded
+
+
+def element_mesh(c: Collision) -> trimesh.Trimesh:
+    """The element as a triangle mesh in its link's frame."""
+    if c.kind == "box":
+        m = trimesh.creation.box(extents=c.size)
+    elif c.kind == "cylinder":
+        m = trimesh.creation.cylinder(radius=c.size[0], height=c.size[1], sections=24)
+    elif c.kind == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=2, radius=c.size[0])
+    elif c.kind == "capsule":
+        m = trimesh.creation.capsule(height=c.size[1], radius=c.size[0], count=(16, 16))
+    else:
+        m = _mesh_file(c.filename).copy()
+        m.apply_scale(c.size)
+    m.apply_transform(c.transform)
+    return m
+
+
+def _thickness(c: Collision, mesh: trimesh.Trimesh) -> float:
+    """Half the element's smallest extent: the largest sphere that fits inside it, about."""
+    if c.kind == "box":
+        return 0.5 * min(c.size)
+    if c.kind in ("cylinder", "capsule", "sphere"):
+        return c.size[0] if c.kind != "cylinder" else min(c.size[0], 0.5 * c.size[1])
+    return 0.5 * float(np.min(mesh.bounding_box_oriented.primitive.extents))
+
+
+def farthest(points: np.ndarray, count: int, first: int = 0) -> np.ndarray:
+    """Indices of ``count`` points spread by farthest-point sampling, from ``first``."""
+    count = min(count, len(points))
+    chosen = [first]
+    dist = np.linalg.norm(points - points[first], axis=1)
+    for _ in range(count - 1):
+        k = int(np.argmax(dist))
+        chosen.append(k)
+        dist = np.minimum(dist, np.linalg.norm(points - points[k], axis=1))
+    return np.asarray(chosen)
+
+
+def _sample(meshes, count: int, seed: int):
+    """``(points, normals)`` on the union of ``meshes``, by area, with outward face normals."""
+    mesh = trimesh.util.concatenate(meshes) if len(meshes) > 1 else meshes[0]
+    points, faces = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return np.asarray(points), np.asarray(mesh.face_normals[faces])
+
+
+def link_spheres(collisions, num_links: int, seed: int = 0):
+    """``(centers (S, 3), radii (S,), links (S,))``: spheres inside each link's collision elements,
+    in the link frames."""
+    centers, radii, links = [], [], []
+    for link in range(num_links):
+        elems = [c for c in collisions if c.link == link]
+        if not elems:
+            continue
+        pts, rad = [], []
+        for c in elems:
+            m = element_mesh(c)
+            r = min(MAX_RADIUS, _thickness(c, m))
+            p, n = _sample([m], max(40, SAMPLES // len(elems)), seed)
+            pts.append(p - r * n)
+            rad.append(np.full(len(p), r))
+        pts, rad = np.concatenate(pts), np.concatenate(rad)
+        keep = farthest(pts, SPHERES_PER_LINK, int(np.argmax(rad)))
+        centers.append(pts[keep])
+        radii.append(rad[keep])
+        links.append(np.full(len(keep), link))
+    if not centers:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32)
+    return np.concatenate(centers), np.concatenate(radii), np.concatenate(links).astype(np.int32)
+
+
+def fingers(parent: tuple, kind: tuple, collisions) -> tuple[list[int], list[int]]:
+    """``(distal links, finger of each link)``: one finger per distinct distal body of a leaf
+    reached through a moving joint; ``finger[l] = -1`` for the palm's links."""
+    count = len(parent)
+    children = [[c for c in range(count) if parent[c] == i] for i in range(count)]
+    owner = list(range(count))  # the link of the last moving joint at or above each link
+    for i in range(count):
+        owner[i] = i if kind[i] != FIXED or parent[i] < 0 else owner[parent[i]]
+    distal = []
+    for leaf in (i for i in range(count) if not children[i]):
+        body = owner[leaf]
+        if kind[body] == FIXED or body in distal:
+            continue
+        distal.append(body)
+    finger = [-1] * count
+    for f, body in enumerate(distal):
+        link = body  # up to the branch point (the palm), which stays the palm's
+        while True:
+            finger[link] = f
+            up = parent[link]
+            if up < 0 or parent[up] < 0 or len(children[up]) > 1:
+                break
+            link = up
+    for i in range(count):  # links below a finger's link belong to it (parents come first)
+        if finger[i] < 0 and parent[i] >= 0 and finger[parent[i]] >= 0:
+            finger[i] = finger[parent[i]]
+    return distal, finger
+
+
+def body_links(body: int, parent: tuple, kind: tuple) -> list[int]:
+    """The links rigidly attached to ``body`` (by fixed joints below it), ``body`` first."""
+    links = [body]
+    for i in range(len(parent)):
+        if kind[i] == FIXED and parent[i] in links:
+            links.append(i)
+    return links
+
+
+def closing_signs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``(J,)`` +1 where a joint closes the hand as its value rises, -1 where as it falls: the
+    side of its range farther from 0 (from the middle when 0 is outside the range; continuous
+    joints +1)."""
+    ref = np.clip(0.0, lower, upper)
+    ref = np.where((ref == lower) | (ref == upper), np.where(np.isfinite(lower + upper), 0.5 * (lower + upper), 0.0),
+                   ref)
+    ref = np.where((lower <= 0) & (upper >= 0), 0.0, ref)
+    up, down = upper - ref, ref - lower
+    return np.where(np.isfinite(up) & (down > up), -1.0, 1.0)
+
+
+def candidates(body_meshes, joint_origin, joint_axis, prismatic: bool, seed: int = 0):
+    """``(points (K, 3), normals (K, 3))`` palm-facing candidates of one distal body.
+
+    ``body_meshes``: its collision meshes in its own frame; ``joint_origin, joint_axis``: its last
+    moving joint's origin and axis in that frame (the joint value rises as the finger closes)."""
+    points, normals = _sample(body_meshes, SAMPLES, seed)
+    arm = points - joint_origin
+    flex = np.broadcast_to(joint_axis, points.shape) if prismatic else np.cross(joint_axis, arm)
+    flex = flex / np.maximum(np.linalg.norm(flex, axis=1, keepdims=True), 1e-12)
+    facing = np.sum(normals * flex, axis=1)
+    reach = np.linalg.norm(arm, axis=1)
+    keep = np.flatnonzero((facing > FACING_COS) & (reach >= np.median(reach)))
+    if len(keep) < CANDIDATES:
+        keep = np.argsort(-(facing + reach / reach.max()))[: 4 * CANDIDATES]
+    pick = keep[farthest(points[keep], CANDIDATES, int(np.argmax(reach[keep])))]
+    if len(pick) < CANDIDATES:
+        pick = np.resize(pick, CANDIDATES)
+    return points[pick], normals[pick]
+
+
+def palm_frame(joint_points: np.ndarray, tips: np.ndarray, closing: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` rows: palm centre, normal, fingers' direction in the root frame, from the
+    fingers' first moving joints ``(F, 3)``, their candidates' centres ``(F, 3)`` and closing
+    directions ``(F, 3)`` there (at the opened configuration)."""
+    center = joint_points.mean(axis=0)
+    along = tips.mean(axis=0) - center
+    along = along / max(np.linalg.norm(along), 1e-12)
+    close = closing.sum(axis=0)
+    normal = close - np.dot(close, along) * along
+    if np.linalg.norm(normal) < 1e-9:  # fingers closing symmetrically about their direction
+        normal, along = along, _any_perpendicular(along)
+    normal = normal / np.linalg.norm(normal)
+    return np.stack([center, normal, along])
+
+
+def _any_perpendicular(v: np.ndarray) -> np.ndarray:
+    other = np.eye(3)[int(np.argmin(np.abs(v)))]
+    w = np.cross(v, other)
+    return w / np.linalg.norm(w)
