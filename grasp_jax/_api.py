@@ -78,17 +78,13 @@ def _warn_unconverged(status, what: str):
 
 #: float32: the retry pass runs an unfinished LP again from this many of the starting points of
 #: ``tolerances(float32).restarts``; what it still leaves unfinished (about 1 grasp in 1,000), a
-#: third pass runs from all of them. One pass from all of them would cost every retry block that
-#: holds one such grasp all the restarts: 44.7k -> 29.2k float32 grasps/s on 100,000 sphere grasps.
+#: third pass runs from all of them (all of them in one pass would cost a third of the throughput).
 RETRY_RESTARTS = 2
 
-#: Grasps per block of :func:`min_weight`'s chunks (``_batch.map_grasps(block=)``). Its LP runs
-#: with the full budget in one pass, so a lock-step block of 256 runs as long as its slowest LP
-#: (about 15 iterations against a mean of 8.5); in blocks of 512 the LPs stream through lanes
-#: (``lp._stream``), each taking its own iterations, with the same results. Measured (65,536
-#: ellipsoid grasps, 4 fingers, 8 edges, two CPU devices): 84,204-85,428 grasps/s in blocks of 256,
-#: 91,860-91,875 in 512, 93,183-96,288 in 1,024. One size for every batch (one compiled program
-#: per grasp shape): a call on one grasp then takes 11 ms instead of 7 (1,024: 22 ms).
+#: Grasps per block of :func:`min_weight`'s chunks (``_batch.map_grasps(block=)``): its LP runs
+#: with the full budget in one pass, and in blocks of 512 the LPs stream through lanes
+#: (``lp._stream``), each taking its own iterations, with the results of lock step (about 8% faster
+#: than blocks of 256). One size for every batch: one compiled program per grasp shape.
 MIN_WEIGHT_BLOCK = 512
 
 

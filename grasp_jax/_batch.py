@@ -2,26 +2,17 @@
 
 Two paths:
 
-* **traced** (the caller is inside ``jit``, ``grad`` or ``vmap``): a plain ``jax.vmap`` over the
+* **traced** (inside the caller's ``jit``, ``grad`` or ``vmap``): a plain ``jax.vmap`` over the
   flattened batch, so the result composes with the caller's transformations.
 * **concrete** (NumPy or JAX arrays): the batch is cut into chunks of one fixed size, each scored
-  by one compiled program (a loop over vmapped blocks of :data:`BLOCK` grasps, which keeps the
-  working set in cache, run over the blocks that hold real grasps only), sharded over the local
-  devices. A batch of any size, 1 or 10^7 grasps, runs the same program: one compilation per
-  grasp shape, dtype and device set (a :class:`Retry` pass runs it again), kept between processes by
-  the persistent cache of :mod:`grasp_jax._cache`. Memory stays
-  flat however large the batch. A :class:`Staged` function's second stage runs, inside the same
-  program, only on the grasps its first stage leaves in need of it, gathered into full blocks.
+  by one compiled program (a loop over vmapped blocks of :data:`BLOCK` grasps, over the blocks
+  that hold real grasps only), sharded over the local devices with no collective. One compilation
+  per grasp shape, dtype and device set serves any batch size (kept by :mod:`grasp_jax._cache`),
+  and memory stays flat. A :class:`Retry` pass reruns the unfinished grasps; a :class:`Staged`
+  function's second stage runs only on the grasps its first stage leaves, gathered into blocks.
 
-Devices. Several local devices (on a CPU: ``XLA_FLAGS=--xla_force_host_platform_device_count``)
-each score their slice of every chunk; the programs use no collective, and each chunk's result
-goes to the host at once, so the devices never wait for each other. A guard: a program that
-calls LAPACK (``jnp.linalg.eigh`` and the like) runs on one device. jaxlib's CPU LAPACK kernels
-split a batch over XLA's intra-op thread pool and block their pool thread until the pieces are
-done; with one device per core, every pool thread can be such a waiting kernel, and nothing is left
-to run the pieces: the program hangs for ever (seen with ``min_weight`` on two CPU devices, when
-the rank test of its 6-D LP called ``eigh``; it is now ``_closure.full_rank``, and no program of
-grasp_jax calls LAPACK). See :func:`_blocking_calls`.
+A program that calls LAPACK runs on one device (:func:`_blocking_calls`): jaxlib's CPU LAPACK
+kernels block XLA's intra-op pool threads, and with one device per core that deadlocks.
 """
 
 from __future__ import annotations
@@ -39,8 +30,8 @@ import numpy as np
 from . import _cache
 from ._validate import is_traced
 
-#: Grasps per vmapped block inside a compiled chunk on a CPU (cache-sized; measured best of
-#: 64..1024 for n = 4, m = 8).
+#: Grasps per vmapped block inside a compiled chunk on a CPU (cache-sized; the fastest of 64..1024
+#: for n = 4, m = 8).
 BLOCK = 256
 #: Grasps per compiled call on the concrete path, on a CPU (all devices together).
 CHUNK = 16384
@@ -49,16 +40,10 @@ ACCELERATOR_CHUNK = 131072
 #: The retry pass scores the unfinished grasps ``chunk / RETRY_FRACTION`` at a time.
 RETRY_FRACTION = 32
 
-#: XLA options of the chunk programs, by platform. On a CPU, LLVM's optimization level 1 instead
-#: of the default: a third less compile time
-#: (``quality``, 4 fingers, 8 edges: 4.8 s against 7.2 s of CPU; ``evaluate`` 11.6 s against
-#: 14.2 s) and the same run time (20,000 grasps: 1.69 s against 1.68 s; n = 7, m = 25: 17.3 s
-#: against 18.4 s); Q moved by at most 8.5e-10 on 20,000 sphere grasps, within the LP tolerance.
-#: float32 alike (``evaluate``, 4 fingers, 8 edges: 10.2 s against 12.5 s to compile, 10.5k against
-#: 8.5k grasps/s, one device); level 0 compiles in half the time but runs 4x slower.
-#: Not used: XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters: False``), which halve the
-#: compile time but change the rounding enough to end an ill-posed quality LP at a wrong optimum
-#: (tests/test_closure.py::test_ill_posed_quality_lp_converges: delta -0.42 for -1).
+#: XLA options of the chunk programs, by platform. On a CPU, LLVM's optimization level 1: about a
+#: fifth to a third less compile time than the default and the same run time, results within the LP
+#: tolerance (level 0 runs 4x slower). XLA's classic CPU emitters are not used: their rounding ends
+#: an ill-posed quality LP at a wrong optimum (tests/test_closure.py).
 COMPILER_OPTIONS: dict = {"cpu": {"xla_backend_optimization_level": 1}}
 
 #: Programs the concrete path has made in this process: ``"traced"`` (a program was traced and

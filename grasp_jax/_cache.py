@@ -4,24 +4,13 @@ One folder serves the library and the command line: ``$GRASP_JAX_CACHE`` when se
 ``no``, ``none``, ``false`` or an empty value switch the cache off), else
 ``$XDG_CACHE_HOME/grasp_jax/xla``, by default ``~/.cache/grasp_jax/xla``.
 
-The library changes no JAX configuration, so it cannot switch on JAX's own persistent cache (a
-process-wide setting, initialized once). Instead it keeps its own: the chunk programs of
-``_batch`` are compiled ahead of time (``jit(...).lower(...).compile()``) and their executables
-serialized with :mod:`jax.experimental.serialize_executable`, one file per program, named by a
-hash of the lowered program text, the compiler options, the JAX and jaxlib versions, the platform,
-the host CPU (:func:`host_cpu`), ``XLA_FLAGS`` and the devices. A program of the same key is loaded
-instead of compiled (well under a second). Files that cannot be read, written or loaded are
-ignored: the program is compiled as without a cache.
-
-Neither the library nor its command line switches on JAX's own persistent cache. Where the caller
-has (``jax_compilation_cache_dir`` set), this cache is only read, never written: JAX's cache keeps
-the programs then, and an executable that JAX loaded from its cache (which it does when this cache
-misses: its key has the device ids, the process index and ``XLA_FLAGS``, JAX's not all of them)
-serializes incompletely: the file written from it fails at run time in every later process
-(``NOT_FOUND: Function ... not found``; seen with two processes on one host).
-
-Like JAX's cache, the folder is trusted: loading an executable can run code. Do not point
-``GRASP_JAX_CACHE`` at a folder that others can write to.
+The library changes no JAX configuration. It compiles ``_batch``'s chunk programs ahead of time
+and serializes their executables (:mod:`jax.experimental.serialize_executable`), one file per
+program, named by a hash of the lowered program, the compiler options, the JAX and jaxlib
+versions, the platform, the host CPU (:func:`host_cpu`), ``XLA_FLAGS`` and the devices; a file
+that cannot be read, written or loaded is ignored. Where the caller has set JAX's own
+``jax_compilation_cache_dir``, this cache is only read: an executable JAX loaded from its cache
+serializes incompletely. The folder is trusted (loading an executable can run code).
 """
 
 from __future__ import annotations

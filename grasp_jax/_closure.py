@@ -1,22 +1,16 @@
 """The central-axis force-closure test and quality of the paper, for **one** grasp.
 
 Proposition 2 (corrected as in ``MATH.md``): a grasp is force-closure iff, about the first contact
-``c_1``,
+``c_1``, (1) some positive combination of cone edges produces ``-delta z_1`` with zero torque about
+``c_1``, ``delta > 0`` (eq. 17 / 22), and (2) the torques ``tau_ij = (c_i - c_1) x v_ij`` of the
+other contacts positively span R^3 (R in 2D). (1) is the quality LP; its optimum is the paper's
+``Q`` (eq. 23). (2) is exact here: a min-weight LP in R^3 plus a rank check (:func:`full_rank`);
+the paper's per-axis eq. (15) is kept as ``torque_test="paper"``. In 2D, (2) is eq. (21).
 
-1. it is in equilibrium in the sense of eq. (17) / (22): some positive combination of cone edges
-   produces ``-delta z_1`` with zero torque about ``c_1``, ``delta > 0``; and
-2. the torques ``tau_ij = (c_i - c_1) x v_ij`` of the other contacts positively span R^3 (R in 2D).
-
-(1) is the quality LP below; its optimum is the paper's ``Q`` (eq. 23). (2) is exact here: a
-min-weight LP in R^3 plus a rank check (eq. 15 only checks each axis separately, which is too weak
-in 3D; it is kept as ``torque_test="paper"``). In 2D, (2) means the scalar torques take both signs,
-which is exactly eq. (21).
-
-When the torques of (2) lie strictly inside an open half-space (a torque LP margin ``l* < 0``;
-about half of random grasps), only contact 1's own edges have zero torque about ``c_1``, and the
-quality LP's optimum is ``delta* = -1`` (hard contacts): :func:`evaluate_one` then needs no quality
-LP, and runs (float64, 3D, exact) as two stages, :func:`torque_stage` and :func:`quality_stage`, so
-that the batched evaluation (``_batch.Staged``) solves the quality LP only where it is needed.
+Where the torques of (2) lie strictly inside an open half-space (torque LP margin ``l* < 0``),
+the quality LP's optimum is ``delta* = -1`` without solving it: in float64, 3D, exact mode the
+evaluation runs as two stages, :func:`torque_stage` and :func:`quality_stage`, so that the batched
+evaluation (``_batch.Staged``) solves the quality LP only where it is needed.
 
 All functions here take one grasp; batching lives in ``_batch.py``.
 """
@@ -178,8 +172,7 @@ def _min_weight_certificate(vectors: jax.Array, sol: LPSolution) -> jax.Array:
 #: ``(lambda / lambda_max)^(2^k)``, and the Rayleigh quotient of the result is within
 #: ``(D - 1) / (2^(k+1) e)`` relative of ``lambda_max`` in the worst case (a second eigenvalue just
 #: below the largest): 1e-3 for ``k = 10`` and ``D = 6``, i.e. the rank threshold moves by at most
-#: 0.1% of itself. LAPACK's ``eigh``, used before, was exact to a few roundoffs; it ran the
-#: programs that call it on one CPU device only (``_batch``).
+#: 0.1% of itself. No LAPACK call, so the programs run on every CPU device (``_batch``).
 SQUARINGS = 10
 
 
@@ -354,9 +347,8 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
     traced); then a full quality LP that round one does not certify runs again in round two, from
     the interior point's dual alone. Returns :func:`polish`'s triples.
 
-    Measured (``experiments/float32_accuracy.py``): 9 of the 10 grasps in 800,000 with
-    ``|Q32 - Q64| > 1e-4`` were of this kind (Q32 up to 0.5 off); the reduced LP's vertex is
-    certified on them and within 1e-6 of float64's Q.
+    Such grasps are most of float32's rare ``|Q32 - Q64| > 1e-4`` (``experiments/float32_accuracy.py``);
+    the reduced LP's vertex is certified on them and within 1e-6 of float64's Q.
     """
     if all(isinstance(k, int) and not k for k in pivots):  # float64: no crossover
         return [polish(q_lp, q_sol, 0), polish(t_lp, t_sol, 0)]
@@ -377,13 +369,12 @@ def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivo
         reduced, R = _half_space_quality_lp(q_lp, safe_normalize(-yt[:3]))
         # On such a grasp round one's vertex, certified or not, is never the answer: the LP is
         # ill-posed (a few roundoffs in its data move delta* by 1e-3) and the vertex found
-        # depends on the CPU's rounding order (issue 27: 6e-5 to 1.7e-4 off under AVX-512, AVX2,
-        # SSE4.2). Only the reduced LP's vertex is taken; without it the value stays uncertified.
+        # depends on the CPU's rounding order. Only the reduced LP's vertex is taken; without it
+        # the value stays uncertified.
         half = jnp.where(first, ct & (jnp.abs(1.0 / K - xt[-1]) <= HALF_SPACE), half)  # l* ~ 0
         # After the full budget, a full quality LP whose vertex round one did not certify runs
         # again from the interior point's dual alone (x = 0): its primal iterate can lead the
-        # initial basis astray (issue 27, AVX: 64 pivots ended at delta = -1 uncertified, and the
-        # interior-point value, 1.8e-4 off, was reported; from y alone, 7 pivots certified Q).
+        # initial basis astray.
         retry = first & ~cq & ~half & full
         cq = jnp.where(first, cq & ~half, cq)
         take = first | cq

@@ -76,15 +76,12 @@ class Tolerances:
 
 
 _F64 = Tolerances(lp=1e-9, margin=1e-7, rank=1e-10, pivot=1e-13, tiny=1e-30)
-#: float32 (measured by ``experiments/float32_accuracy.py``): the interior-point method aims at
-#: 1e-6 (stopping at 1e-4 let |dQ| reach 0.1) and refines every direction once (without it the
-#: primal residual of 2% of quality LPs stops falling); after the full budget the best iterate
-#: within 100x counts as optimal, as in float64, and LPs still unfinished start again from other
-#: points in turn (a stalled trajectory is rounding, not the problem; 20,000 sphere grasps, 4 fingers,
-#: 25 edges: verdicts that differ outside the 1e-4 band 22 with two points, 6 with four, 4 with these
-#: six; one compiled loop serves them all). A margin must exceed 2e-5, so that the verdicts of grasps
-#: whose margins are clear of 1e-4 can match float64's. Then a crossover to a certified vertex
-#: (``_crossover``): grasps with |Q32 - Q64| > 1e-4 fell from 8..312 to 0..2 in 100,000 per shape.
+#: float32 (checked by ``experiments/float32_accuracy.py``): the interior-point method aims at
+#: 1e-6 and refines every direction once; after the full budget the best iterate within 100x counts
+#: as optimal, as in float64, and LPs still unfinished start again from the other points of
+#: ``restarts`` in turn (a stalled trajectory is rounding, not the problem). A margin must exceed
+#: 2e-5, so that verdicts of grasps whose margins are clear of 1e-4 match float64's. A crossover to
+#: a certified vertex (``lp._crossover``) follows.
 _F32 = Tolerances(lp=1e-6, margin=2e-5, rank=1e-5, pivot=1e-6, tiny=1e-30, refine=1,
                   restarts=(3.0, 0.3, 1.7, 0.6, 10.0, 0.1), crossover=64, crossover_short=12)
 

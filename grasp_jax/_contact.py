@@ -1,36 +1,18 @@
-"""Contact models: the primitive wrenches a contact transmits, for **one** grasp.
-
-Every metric reads the columns built here (the quality and torque LPs of ``_closure``, the
-min-weight margin, the optimizer's objectives, the qhull baseline through ``reference``), so a
-contact model is defined once.
+"""Contact models: the primitive wrenches a contact transmits, for **one** grasp, which every metric
+reads (derived in docs/guides/contact-models.md):
 
 ``"hard"`` (point contact with friction, the paper's)
-    The ``m`` cone edges ``v_ij`` of contact ``i`` (``_cones.cone_edges``) as wrenches
-    ``(v_ij, c_i x v_ij)`` (eq. 6). Two hard contacts in 3D are never force-closure: no
-    combination of them resists a torque about the line joining them.
+    The ``m`` cone edges ``v_ij`` of contact ``i`` as wrenches ``(v_ij, c_i x v_ij)`` (eq. 6).
 ``"soft"`` (soft finger, coupled linearization)
-    Besides its friction cone, a soft finger resists a moment about its normal bounded by the
-    normal force times ``torsion`` (a length): ``|m_n| <= torsion * f_n``. Each edge (whose normal
-    component is 1) gives two wrenches ``(v_ij, c_i x v_ij +/- torsion z_i)``, ``z_i = -normal_i``:
-    their cone is exactly the pyramid times ``[-torsion f_n, torsion f_n]``, so no moment is
-    available without normal force. For a circular patch of radius ``r`` under uniform pressure
-    the bound is ``torsion = (2/3) mu r`` (:func:`patch_torsion`; the integral of ``mu p rho`` over
-    the disc over the normal force ``p pi r^2``).
-``"dexnet-soft"`` (Dex-Net's soft fingers)
-    Dex-Net's ``PointGraspMetrics3D.grasp_matrix(..., soft_fingers=True)``: the hard columns plus
-    two pure-moment columns ``(0, +/- torsion normal_i)`` per contact, not tied to the normal force
-    (Dex-Net: ``torsion = pi r^2 mu``, :func:`dexnet_torsion`, ``r`` its ``finger_radius``).
-    Torques and these columns are scaled alike (Dex-Net's ``torque_scaling``). Offered to
-    reproduce Dex-Net and GraspNet-1Billion labels; it lets a grasp resist a moment with no
-    normal force, which no physical contact does.
+    Each edge gives ``(v_ij, c_i x v_ij +/- torsion z_i)``: a moment about the normal bounded by
+    ``torsion`` times the normal force (``torsion = (2/3) mu r`` for a patch of radius ``r``,
+    :func:`patch_torsion`). 3D only.
+``"dexnet-soft"`` (Dex-Net's soft fingers, to reproduce Dex-Net and GraspNet-1Billion labels)
+    The hard columns plus two pure moments ``(0, +/- torsion normal_i)`` per contact, not tied to
+    the normal force (:func:`dexnet_torsion`).
 
-Soft contacts are 3D only: a planar contact's moment about its normal is about an axis in the
-plane, outside the planar wrench space ``(f_x, f_y, tau_z)``, so in 2D a soft finger is a hard one.
-
-Proposition 2 with soft contacts (derived in docs/guides/contact-models.md): the grasp is
-force-closure iff (1) the quality LP over all columns has ``delta* > 0`` and (2) the torques about
-``c_1`` of all columns positively span R^3, contact 1's torsion columns included (hard contacts:
-its columns have no torque about ``c_1`` and are left out, :attr:`Columns.fixed`).
+Condition (2) of Proposition 2 takes contact 1's soft torsion columns too; hard contacts leave
+its columns out (:attr:`Columns.fixed`).
 """
 
 from __future__ import annotations

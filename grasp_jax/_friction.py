@@ -1,68 +1,18 @@
 """Critical friction: the smallest friction coefficient at which **one** grasp is force-closure.
 
-Force-closure is monotone in ``mu``: an edge of the pyramid of ``mu_1 < mu_2`` is a positive
-combination of the edges of ``mu_2`` (edges are ``z + mu d_j`` and the ``d_j`` sum to 0), so the
-set of ``mu`` at which a grasp holds is an interval ``(mu*, inf)``, and the span of the wrenches is
-the same for every ``mu > 0``. ``mu*`` is the root of the classical min-weight margin ``l*(mu)``
-on the contact model's wrenches (``_contact``; ``l* > 0`` exactly at force-closure). The function
-searched is ``g(mu) = mu l*(mu)``, which has the same root and is nearly straight: with
-``s = mu / mu_0`` each edge of the pyramid of ``mu`` is ``(1 - s)`` times the axis plus ``s`` times
-an edge of ``mu_0``, so in the weights of the ``mu_0`` edges the margin's constraints read
-``gamma_ij - (1 - s) mean_j(gamma_i) >= s l``: ``mu l*(mu)`` is ``mu_0`` times the optimum of an LP
-whose constraints move linearly with ``s``. (``l*`` itself flattens at large ``mu``, so a Newton
-step from the cap on it overshot far below ``mu*``: 7.8 steps per grasp on average, 22 at the 99th
-percentile, against 5.2 and 11 on ``g``; random 4-finger ellipsoid grasps.) It is found in a
-bracket ``[lo, hi]`` with ``g(lo) <= 0 < g(hi)``:
+Force-closure is monotone in ``mu``, so the grasp holds on ``(mu*, inf)``; ``mu*`` is the root of
+``g(mu) = mu l*(mu)``, ``l*`` the min-weight margin on the contact model's wrenches (``_contact``),
+nearly straight in ``mu``. The search keeps a bracket ``[lo, hi]`` with ``g(lo) <= 0 < g(hi)``
+and takes a Newton step (with the LP's envelope derivative) where it falls inside, else false
+position (Illinois), else bisection, until ``hi - lo <= rtol * hi`` (or ``hi <= ATOL * cap``). It
+seeks ``l* = threshold`` and carries the root back to ``l* = 0`` by one Newton step.
 
-* a Newton step from either end, with the LP's envelope derivative ``d l* / d mu`` (one extra
-  matrix-vector product per solve; ``g' = l* + mu d l* / d mu``), taken when it falls inside the
-  bracket; ``l*`` is piecewise smooth in ``mu`` (one piece per optimal basis), and a generalized
-  linear-fractional problem such as this one is what Dinkelbach-type (Newton) iterations solve in
-  a few steps;
-* false position (Illinois) where Newton leaves the bracket, and bisection where the bracket did
-  not halve in two steps (Dex-Net's soft model has ``l* = 0`` on the whole interval below
-  ``mu*``, with no slope to follow);
-* a step that would land within ``rtol / 2`` (relative) of an end is moved to ``rtol / 2`` times
-  that end from it, so that the bracket closes from both sides,
-
-until ``hi - lo <= rtol * hi`` (or ``hi <= ATOL * cap``: a grasp that holds at every ``mu > 0`` but
-not at 0, such as Dex-Net's soft pairs on a diameter, has ``mu* = 0`` as an infimum only).
-
-The root sought is that of ``l* = threshold`` (1e-8 in float64), not ``l* = 0``: ``l*`` is often
-exactly 0 on a whole interval below ``mu*`` (a wrench cone that holds a line), where the
-interior-point margins are off by up to 1e-8 either way; it is then carried back to ``l* = 0`` by
-one Newton step, which removes the threshold's bias. Measured against plain bisection of HiGHS
-(``reference.critical_friction_highs``, tight tolerances: HiGHS's defaults report 0 for margins
-up to 2e-8) on 1,200 random grasps (box and cylinder; hard 3 and 4 fingers, soft and Dex-Net soft
-2 and 3): all within 1e-6 relative but 3, the worst 7.6e-6, where ``l*`` rises by only 1e-3 per
-unit of ``mu`` at the root (an error of 1e-8 in ``l*`` is then 1e-5 in ``mu*``).
-
-A vmapped search runs until the slowest grasp of its block is done; a batch is first searched
-with :data:`FIRST_STEPS` steps (:data:`FIRST_STAGE_STEPS` for every grasp, then the rest for the
-searches still open, gathered into full blocks: ``_batch.Staged``) and the searches left open go on
-with :data:`MAX_STEPS` and the full interior-point budget (``_batch.Retry``), from the last bracket
-their first pass proved (the state ``_search`` ends with and resumes from), not from ``[0, cap]``,
-and with no LP at the cap. Two safeguards keep the slowest
-searches short, since every grasp of a block waits for them: where ``l*`` is flat at 0 just below
-``mu*`` (a Newton step from ``hi`` lands there and says nothing new), a short step up from ``lo``
-(:data:`UNDERSHOOT`); and bisection after two steps that halved neither the bracket nor ``|g|`` on
-the side they fell on. (Random 4-finger grasps: the slowest of a block of 256 took 20 steps on
-average before them, 12 with them; one search in 4,096 still takes 23.)
-
-Each step's LP starts warm (``lp.solve(warm=...)``, Skajaa, Andersen and Ye 2013): from the last
-step's solution, weighted by how far ``mu`` moved (``lp.WARM``); a Newton step that moves ``mu``
-by 1e-3 relative then takes 3-5 interior-point iterations instead of 9 on average. The second
-stage of a pass resumes from that solution too (it is part of the search's full state); a batch's
-second pass resumes from the bracket alone (:data:`RESUME`), its first LP cold.
-
-Derivatives come from the implicit function theorem on ``l*(mu*, points, normals, torsion) = 0``:
-``d mu* = -(d l*/d theta) / (d l*/d mu)``, with the envelope derivatives of the LP (no iteration
-of the root finder is differentiated).
-
-Torques are taken about the contacts' centroid and divided by their largest distance from it (the
-margin's sign depends on neither; this keeps it well scaled). The torsion of soft contacts is held
-fixed while ``mu`` moves (Dex-Net's ``pi r^2 mu`` columns: pass the torsion of the ``mu`` you care
-about).
+A batch runs :data:`FIRST_STEPS` steps (:data:`FIRST_STAGE_STEPS` for every grasp, the rest for
+the open searches, gathered: ``_batch.Staged``), then the open ones resume from their bracket with
+:data:`MAX_STEPS` and the full budget (``_batch.Retry``). Each step's LP starts warm from the last
+(``lp.warm_weight``). Derivatives come from the implicit function theorem on ``l*(mu*, ...) = 0``.
+Torques are taken about the contacts' centroid, scaled by their largest distance from it; soft
+contacts' torsion is held fixed while ``mu`` moves.
 """
 
 from __future__ import annotations
@@ -88,12 +38,9 @@ RTOL_FLOAT32 = 3e-5
 #: ``mu* = 0.08`` took 40).
 MAX_STEPS = 64
 #: Steps of the first pass over a batch (``_batch.Retry``): a vmapped search runs until the slowest
-#: grasp of its block has converged; 95% of random 4-finger grasps need at most 7 steps (median 5,
-#: 99th percentile 8, one in 4,096 23), two soft contacts 3 or 4, so the first pass stops at this
-#: many and the searches it leaves open go on in a second pass with :data:`MAX_STEPS`. (8,192
-#: ellipsoid grasps, 4 hard fingers, 2 CPU devices, one run: 6 / 7 / 8 / 10 steps gave 2,368 /
-#: 2,696 / 2,401 / 1,816 searches/s with :data:`FIRST_EXTRA_ITERATIONS` = 2, before the second pass
-#: resumed the first's brackets; after it, 6 against 7 in two runs: 1,840 / 2,184 and 1,686 / 2,291.)
+#: grasp of its block has converged, and 95% of random 4-finger grasps need at most 7 steps (two
+#: soft contacts 3 or 4); the searches left open go on in a second pass with :data:`MAX_STEPS`.
+#: The fastest of 6, 7, 8 and 10.
 FIRST_STEPS = 7
 #: Of those, the steps every grasp of the first pass takes before the searches still open are
 #: gathered into full blocks for the rest (``_batch.Staged``): 77% of random 4-finger searches
@@ -103,10 +50,8 @@ FIRST_STAGE_STEPS = 5
 #: of the LP's size (14 for 4 hard fingers, 8 edges): a step whose LP is unfinished then proves
 #: nothing (it becomes a lower end on credit, and a search that ends on such an end is searched
 #: again with the full budget), while the full budget made every step of a block wait for its
-#: slowest LP (about 15 iterations). Measured, 8,192 ellipsoid grasps, 4 hard fingers, 2 CPU
-#: devices, one run, 7 first-pass steps: 1,729 / 2,696 / 2,307 searches/s with 10 / 12 / 14
-#: iterations (10: too many searches left for the second pass); critical friction within 1.3e-7
-#: relative of the full-budget search's.
+#: slowest LP (about 15 iterations). The fastest of 0, 2 and 4 extra (fewer leave too many
+#: searches to the second pass); ``mu*`` within 1.3e-7 relative of the full-budget search's.
 FIRST_EXTRA_ITERATIONS = 2
 #: A lower end whose slope of ``mu l*`` is below this fraction of the upper end's is on a piece where
 #: ``l*`` is flat at 0 (:func:`_search`).
@@ -121,11 +66,9 @@ DEFAULT_CAP = 4.0
 ATOL = 1e-9
 #: Longest step back from the root of ``l* = threshold`` to that of ``l* = 0``, relative to ``mu*``.
 BACK = 1e-3
-#: Crossover pivots after each interior-point solve (``lp._crossover.polish``): none. Measured against
-#: bisection of HiGHS (tight tolerances) on 1,200 grasps: the crossover's feasibility tolerance
-#: (1e-6, set for float32) certified vertices whose margin was 1e-8 too high where ``l*`` is 0 on an
-#: interval of ``mu`` (a hard 3-finger cylinder grasp: ``mu*`` 1.596 for 2.110), and cost 2.5x the
-#: throughput of two soft contacts.
+#: Crossover pivots after each interior-point solve (``lp._crossover.polish``): none. The
+#: crossover's feasibility tolerance (1e-6, set for float32) certifies vertices whose margin is 1e-8
+#: too high where ``l*`` is 0 on an interval of ``mu``, which moves ``mu*`` far off.
 CROSSOVER = 0
 
 
@@ -207,14 +150,10 @@ def _frictionless_possible(n: int, d: int, contact: str) -> bool:
 RESUME = 8
 
 #: Grasps per vmapped block of the search on a CPU (``_batch.map_grasps``, the first size the batch
-#: fills; ``evaluate``'s is 256). In a block of 512 the LPs of each step are streamed through
-#: ``lp.LANES`` lanes (``lp._stream``), each taking the iterations it needs, and a finished
-#: search's LP takes none (``skip``); in a block below ``lp.STREAM_MIN`` every LP waits for the
-#: block's slowest, and warm-started LPs vary much (mean 3-5 iterations, the slowest of 256 8-11),
-#: so small blocks: 8,192 ellipsoid grasps, 4 hard fingers, best of 3 alternating calls, 1/5.3 of
-#: ``evaluate`` in blocks of 512 (1/5.4 at 1,024, 1/6.7 at 2,048: the block's slowest search sets
-#: its steps) against 1/5.8 in blocks of 32; lock step in blocks of 256 / 64 / 32 / 16 earlier:
-#: 1/6.7, 1/5.8, 1/5.5, 1/5.5.
+#: fills). In a block of 512 the LPs of each step stream through ``lp.LANES`` lanes
+#: (``lp._stream``), each taking the iterations it needs, and a finished search's LP takes none
+#: (``skip``); a smaller batch runs lock-step blocks of 32, where every LP waits for the block's
+#: slowest (warm-started LPs vary much). Larger blocks are slower: the slowest search sets its steps.
 BLOCK = (512, 32)
 
 def _lp_shape(n: int, d: int, contact: str, num_edges: int) -> tuple[int, int]:

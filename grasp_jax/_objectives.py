@@ -1,48 +1,18 @@
 """Objectives a contact optimizer maximizes, for **one** grasp, beside the metrics of ``_closure``.
 
-Q is 0 on the whole region where a grasp is not in equilibrium (a plateau without gradient), and
-the signed optimum ``delta*`` of the quality LP sees only condition (1) of Proposition 2: starts
-drift to grasps in equilibrium whose torques about ``c_1`` do not span. The objectives here are
-continuous, finite, differentiable almost everywhere (envelope theorem on each LP's primal-dual
-solution; no iteration is differentiated), and see both conditions:
+Each is continuous, finite and differentiable almost everywhere (envelope theorem on each LP's
+solution), unlike Q, which is flat at 0 off equilibrium. Each takes ``points, normals: (n, d)``
+and returns a scalar and a small dict of monitors.
 
-``"closure"`` (the default)
-    ``min(delta*, W T, delta* + W T)`` (``W = TORQUE_WEIGHT``), with ``delta*`` the signed quality
-    LP optimum (``Q`` where positive) and ``T`` the torque margin about ``c_1``: ``K l*`` of the
-    min-weight LP on the ``K = (n - 1) m`` torques ``tau_ij`` in 3D (``l* > 0`` iff they
-    positively span R^3; 0 when rank deficient), the smaller of the largest positive and negative
-    torque over the grasp size in 2D. That is ``min(delta*, W T)`` where either is positive and
-    their sum where both are negative: ``delta*`` sits on its floor -1 (the first contact alone)
-    on about half of random grasps, a constant, and there the torque term still pulls (with the
-    plain minimum, 41 of 512 starts on the mechanical part spent 20 steps or more on that floor;
-    none with the sum). Positive exactly when the grasp is force-closure (Proposition 2, exact
-    form), and equal to ``Q`` wherever ``W T >= Q`` (most force-closure grasps; a continuous
-    objective cannot equal ``Q`` everywhere on force-closure grasps, because ``Q`` stays positive
-    where the torque condition fails).
-``"closure_any"``
-    The smallest ``"closure"`` over the choice of ``c_1`` (each contact in turn): does not depend
-    on the order of the contacts; the smallest Q over the choice of reference contact where the
-    torque terms do not bind. ``n`` times the LPs.
-``"min_weight"``
-    ``K l*`` of the classical min-weight LP on all ``K = n m`` primitive wrenches (torques about
-    the object's centre, divided by its radius): positive iff force-closure, independent of
-    ``c_1``; the margin FRoGGeR (Li et al. 2023) optimizes.
-``"signed_q"``
-    ``delta*`` alone (equilibrium only; kept to show why it is not enough).
-``"friction"``
-    ``-mu*``, the critical friction (``grasp_jax._friction``; implicit-function gradients): grasps
-    that need the least friction, whatever ``mu`` is. Where the grasp is not force-closure at the
-    cap :data:`FRICTION_CAP`, ``-cap + K l*(cap)`` (the min-weight margin at the cap, <= 0 there),
-    which is continuous with ``-mu*`` as ``mu*`` reaches the cap and pulls towards it. About 10 LPs
-    per grasp and step instead of 2.
-``"dfc"``, ``"dfc_eig"``
-    The energies of DexGraspNet / DFC (Liu et al. 2021), negated so that larger is better:
-    ``-||sum_i [n_i; p_i x n_i]||^2`` (unit normal forces, no friction), points about the object's
-    centre over its radius; ``"dfc_eig"`` adds ``sum relu(0.01 - eig(G G^T))^2``, ``G`` the
-    ``(d + t, n d)`` grasp matrix. Neither is zero or positive exactly at force-closure: they are
-    baselines, scored afterwards by the exact test.
-
-All take ``points, normals: (n, d)`` and return a scalar, plus a small dict of monitors.
+* ``"closure"`` (default): ``min(delta*, W T, delta* + W T)``, ``delta*`` the signed quality LP
+  optimum, ``T`` the torque margin about ``c_1``, ``W = TORQUE_WEIGHT``; positive exactly at
+  force-closure, equal to ``Q`` wherever ``W T >= Q``. ``"closure_any"``: its minimum over the
+  choice of ``c_1``.
+* ``"min_weight"``: ``K l*`` of the min-weight LP on all primitive wrenches (FRoGGeR's margin).
+* ``"signed_q"``: ``delta*`` alone (equilibrium only).
+* ``"friction"``: ``-mu*`` (``_friction``), ``-cap + K l*(cap)`` above :data:`FRICTION_CAP`.
+* ``"dfc"``, ``"dfc_eig"``: the negated energies of DexGraspNet / DFC (Liu et al. 2021), baselines
+  that are not signed at force-closure.
 """
 
 from __future__ import annotations

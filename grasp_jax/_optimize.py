@@ -1,23 +1,15 @@
 """Multi-start gradient optimization of contacts on an object's surface: the optimizer loop.
 
-Layers (each in its own module):
+``surfaces`` says how a contact sits on and moves over each object kind, ``_objectives`` what is
+maximized; this module advances one *start* ``length`` steps by ``lax.scan`` (:func:`_segment`),
+batched over all starts by ``_batch.map_grasps``, segment after segment for a progress bar.
 
-* ``surfaces``: how one contact sits on and moves over each object kind (``chart``, ``retract``);
-* ``_objectives``: what is maximized, for one grasp (``objective_one``);
-* this module: one *start* advanced ``length`` steps by ``lax.scan`` (:func:`_segment`), batched
-  over all starts by ``_batch.map_grasps`` (chunks of fixed shape, ``lax.map`` over vmapped
-  blocks, sharded over local devices: the same machinery that scores grasps), segment after
-  segment so that a progress bar can follow the steps;
-* ``cli``: ``grasp-jax optimize`` on top.
-
-A step, for every start at once: the objective and its gradient with respect to an ambient
-displacement ``v: (n, d)`` of the contacts at ``v = 0`` (through ``surface.chart``, so the
-gradient is Riemannian and sees how normals turn), one optax update of ``-gradient`` (optax
-minimizes), and ``surface.retract`` by the update times the object's radius: steps are taken in
-units of the object's size, whatever its units. The best iterate of each start is kept (the one
-with the highest Q among those the closure objective calls force-closure, else the one with the
-highest objective; by objective alone when Q is not monitored), and at the end it is scored by :func:`grasp_jax.evaluate`, the exact test: the reported
-``quality`` is exactly what ``evaluate`` returns for the reported points and normals.
+A step, for every start at once: the objective's gradient with respect to an ambient displacement
+``v: (n, d)`` of the contacts at ``v = 0`` (through ``surface.chart``: a Riemannian gradient), one
+optax update of ``-gradient``, and ``surface.retract`` by the update times the object's radius.
+Each start keeps its best iterate (the highest Q among those the closure objective calls
+force-closure, else the highest objective), scored at the end by :func:`grasp_jax.evaluate`: the
+reported ``quality`` is exactly what ``evaluate`` returns for the reported contacts.
 """
 
 from __future__ import annotations
@@ -60,8 +52,7 @@ RESTART_RATE = 1 / 6
 RESTART_WARMUP = 5
 #: Segments of the step loop (one compiled call each; the progress bar advances per segment):
 #: at most :data:`SEGMENTS`, of about :data:`MIN_SEGMENT` steps or more (a call costs about 10 ms
-#: on the host whatever its length: 1,024 starts x 20 steps as 20 one-step calls took 30 us per
-#: start and step, as two calls 21 us).
+#: on the host whatever its length).
 SEGMENTS = 20
 MIN_SEGMENT = 10
 #: A start has converged when its best objective rose by less than this over the last
@@ -279,12 +270,8 @@ def default_optimizer(steps: int, learning_rate: float = DEFAULT_LEARNING_RATE,
     :data:`RESTART_AT` of the steps, then a fresh Adam (moments reset) decays from
     :data:`RESTART_RATE` x ``learning_rate`` (reached by a linear ramp of :data:`RESTART_WARMUP`
     steps from the first decay's end) to 1% of that over the rest: the first phase finds
-    force-closure, the second climbs the ridges of Q that a fully decayed rate crawls along. Measured
-    (4 fingers, 1,024 random starts, 60 steps as 20 + 40, against one decay over 60): starts at a
-    local optimum (Q within 1% of 3 x 60 more refining steps) 12% -> 21% on the glass, 22% -> 40%
-    on a cylinder, 69% -> 76% on the sphere, force-closure fractions unchanged (>= 99.3%). The
-    ramp (1,024 starts, 60 steps): Q p25 0.907 -> 0.921 on the glass, Q p50 0.762 -> 0.801 and
-    force-closure 96.5% -> 97.2% on the YCB clamp, the same Q after 4x the steps.
+    force-closure, the second climbs the ridges of Q that a fully decayed rate crawls along (about
+    twice as many starts end at a local optimum in 60 steps as with one decay).
     """
     first = round(steps * RESTART_AT) if restart else steps
     if not restart or first < 1 or steps - first < 1:

@@ -1,32 +1,17 @@
-"""Floating-point precision: the dtype rules of grasp_jax, written down in this one place.
+"""Floating-point precision: the dtype rules of grasp_jax, in this one place.
 
-grasp_jax never changes JAX's global configuration: importing it or calling it leaves
-``jax_enable_x64`` as the caller set it. Which precision a call computes in follows from its
-inputs (``points``, ``normals``, ``tangents``; for :func:`grasp_jax.central_axis`, ``wrench``):
+grasp_jax never changes JAX's global configuration (``jax_enable_x64`` stays as the caller set
+it). A call's precision follows from its inputs (``points``, ``normals``, ``tangents``; for
+:func:`grasp_jax.central_axis`, ``wrench``):
 
-1. **Traced inputs** (the call is inside the caller's ``jit``, ``vmap``, ``grad``, ...): the
-   library computes in the tracers' dtype, JAX's promotion of the inputs. That is float32 in a
-   program without x64 (a NumPy float64 array passed to a jitted function is float32 there), and
-   float64 only where the caller has enabled x64. Nothing is switched on behind the caller's back.
-2. **Concrete inputs** (NumPy arrays, lists, concrete JAX arrays): NumPy's promotion of the inputs
-   decides, integers and booleans counting as float64 (as in NumPy):
-
-   * float64 -> computed in float64, inside :func:`float64_scope` (JAX's scoped ``jax.enable_x64``
-     switch, entered for the call and left when it returns). Results are float64 JAX arrays.
-   * float32 (every input float32) -> computed in float32 (:data:`_constants._F32` tolerances),
-     float32 results.
-   * float16 / bfloat16 -> computed in float32 (there are no half-precision tolerances).
-
-3. Scalars and small arguments (``mu``, ``origin``, ``torque_scale``) take the grasps' dtype;
-   boolean results stay bool, statuses int8, iteration counts int32.
-4. If float64 is asked for (rule 2) and the backend cannot give it (a platform without float64, or
-   x64 that cannot be switched on), the call raises :class:`Float64Unavailable` (a ``TypeError``)
-   saying so; pass float32 arrays to compute in float32.
-
-A caveat for programs without x64: float64 JAX arrays returned by a concrete call are still
-float64, but new JAX operations on them outside the scope (``res.quality.mean()``) compute in
-float32, with JAX's "dtype float64 ... is not available" warning. Convert with ``np.asarray``
-first, or run the code in ``with jax.enable_x64(True):``.
+1. **Traced inputs** (inside the caller's ``jit``, ``vmap``, ``grad``): the tracers' dtype.
+2. **Concrete inputs**: NumPy's promotion, integers and booleans counting as float64. float64 is
+   computed inside :func:`float64_scope` (JAX's scoped ``jax.enable_x64``) with float64 results;
+   float32 in float32 (:data:`_constants._F32` tolerances); float16 and bfloat16 in float32.
+3. Scalars (``mu``, ``origin``, ``torque_scale``) take the grasps' dtype; booleans stay bool,
+   statuses int8, iteration counts int32.
+4. float64 asked for where the backend cannot give it raises :class:`Float64Unavailable`.
+   Without x64, JAX operations on float64 results compute in float32: ``np.asarray`` them first.
 """
 
 from __future__ import annotations

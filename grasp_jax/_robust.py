@@ -1,33 +1,18 @@
 """Robust grasp labels: force-closure and quality under noise, by Monte Carlo (Dex-Net 2.0's
 robust metrics).
 
-A :class:`Noise` describes what may differ from the nominal grasp: where each finger touches the
-object (moved along its surface), the contact normals, the friction at each contact and the
-object's pose under fixed fingers. :func:`robust` draws ``samples`` perturbations of every grasp
-and scores them with the same single-grasp programs as :func:`grasp_jax.evaluate` and
-:func:`grasp_jax.min_weight`, through the one batching path (``_batch.map_grasps``): grasps x
-samples are flattened into one batch, a slice of grasps at a time, so memory stays flat and one
-compiled program serves every grasp shape.
+A :class:`Noise` says what may differ from the nominal grasp; :func:`robust` draws ``samples``
+perturbations of every grasp and scores them with the single-grasp programs of
+:func:`grasp_jax.evaluate` and :func:`grasp_jax.min_weight` through ``_batch.map_grasps``, grasps
+x samples flattened, :data:`ROWS` at a time. The draws depend on the key, the sample and the
+contact slot only (common random numbers: every grasp meets the same perturbations).
 
-Common random numbers: the draws depend on the key, the sample index and the contact slot only,
-never on the grasp, so every grasp meets the same perturbations and the ranking of two grasps does
-not move with the draw (the difference of their estimates has a much smaller variance than each).
-
-Units and conventions:
-
-* ``position``: standard deviation of each tangent coordinate of a contact's displacement, in
-  units of the object's radius (``surface.scale``); the contact moves by it along the surface
-  (``Surface.retract``), so it stays on the object;
-* ``normal``: standard deviation of each tangent coordinate of the normal's tilt, in radians (the
-  tilt angle is Rayleigh-distributed with this scale in 3D, normal in 2D);
-* ``friction``: ``(lo, hi)``: each contact's ``mu`` times ``U[lo, hi]``; or ``friction_sigma``:
-  ``mu`` times ``exp(N(0, sigma^2))`` (lognormal, median ``mu``);
-* ``rotation`` (radians, per axis of the rotation vector; the angle in 2D) and ``translation``
-  (object radius units, per axis): the object moves by ``x -> R (x - c) + c + t`` about its centre
-  ``c`` while the fingers stay where they are; each contact then goes to the surface point
-  nearest to its finger (found by :data:`PROJECTION_STEPS` retractions towards it, the nearest
-  point for perturbations small beside the surface's curvature radius). Force-closure and Q do
-  not depend on the frame, so the grasp is scored in the object's frame.
+Units: ``position`` and ``translation`` in object radii (``surface.scale``), ``normal`` and
+``rotation`` in radians, all standard deviations per tangent coordinate or axis; ``friction`` a
+``(lo, hi)`` uniform factor or ``friction_sigma`` a lognormal one. A contact moves along the
+surface (``Surface.retract``); under pose noise the object moves about its centre under fixed
+fingers and each contact goes to the surface point nearest its finger (:data:`PROJECTION_STEPS`
+retractions). The grasp is scored in the object's frame.
 """
 
 from __future__ import annotations

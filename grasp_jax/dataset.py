@@ -7,28 +7,12 @@ where asked) on every object of a folder of meshes or of a manifest file, and wr
     DIR/object=<name>/part.parquet    the object's grasps (written atomically)
     DIR/_objects/<name>.json          the object's status record (written atomically)
 
-``DIR`` is a hive-partitioned Parquet dataset: ``pyarrow.dataset.dataset(DIR,
-partitioning="hive")``, ``pandas.read_parquet(DIR)``, ``polars.scan_parquet(DIR + "/*/*.parquet",
-hive_partitioning=True)`` and DuckDB's ``read_parquet('DIR/*/*.parquet', hive_partitioning=true)``
-read it without grasp_jax (the files and folders that start with ``_`` or ``.`` are not data).
-
-Resuming. An object is done when its part and a ``done`` record exist; a run started again on the
-same ``DIR`` skips the done objects and does the others (failed ones again). A part is published
-by one ``os.replace`` after it is complete, and its record after it, so a run killed at any point
-(SIGTERM, ``kill -9``) leaves each object either done or to do again, never half written and never
-in two parts. The configuration is stored in the manifest; a run with another configuration stops
-with an error instead of mixing the two.
-
-Sharding. ``shard=(i, N)`` does the objects ``i, i + N, i + 2N, ...`` of the sorted list; the
-shards of a SLURM array (``SLURM_ARRAY_TASK_ID`` / ``SLURM_ARRAY_TASK_COUNT``, read by
-:func:`shard_from_environment`) or of any launcher write into the same ``DIR`` without waiting for
-each other. Every process rewrites ``_manifest.json`` from all records, under a lock, every
-:data:`MANIFEST_EVERY` seconds and when it ends; the last to finish leaves it complete (the
-records are what resuming reads). The manifest's name starts with ``_`` so that Parquet readers
-given ``DIR`` skip it, as they skip Spark's ``_SUCCESS``.
-
-Objects in one process share the compiled scoring programs (one per grasp shape); robust labels
-with noise that moves contacts compile a small perturbation program per mesh size (about a second).
+``DIR`` is a hive-partitioned Parquet dataset that pyarrow, pandas, polars and DuckDB read
+(entries starting with ``_`` or ``.`` are not data). An object is done when its part and a
+``done`` record exist; a run again on ``DIR`` skips the done objects, and a run with another
+configuration stops with an error. ``shard=(i, N)`` does objects ``i, i + N, ...`` of the sorted
+list (:func:`shard_from_environment` reads SLURM's array variables); shards write into one ``DIR``
+and each rewrites ``_manifest.json`` from all records, under a lock, every :data:`MANIFEST_EVERY` s.
 """
 
 from __future__ import annotations

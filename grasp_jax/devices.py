@@ -1,18 +1,16 @@
 """Devices and processes: how many XLA devices the CPU is split into, and multi-process runs.
 
 Devices
-    On a CPU, XLA makes one device of all cores; :func:`configure_cpu_devices` splits them into
-    one device per core (``XLA_FLAGS=--xla_force_host_platform_device_count``), which about
-    doubles throughput on two cores. It must run before JAX starts its backend (importing JAX is
-    fine; the first computation or ``jax.devices()`` is too late).
+    :func:`configure_cpu_devices` splits the CPU into one XLA device per core
+    (``XLA_FLAGS=--xla_force_host_platform_device_count``), which about doubles throughput on two
+    cores. It must run before JAX starts its backend (the first computation or ``jax.devices()``).
 
 Several hosts
-    With ``distributed=True`` (``grasp-jax sample --distributed``), or when the standard
-    variables ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID`` are set,
-    :func:`initialize_distributed` calls :func:`jax.distributed.initialize` (which also detects
-    SLURM, Open MPI and TPU pods by itself). Process ``i`` of ``P`` then scores the contiguous
-    slice :func:`slice_bounds` of the grasps and writes its own file :func:`part_path` (see
-    :mod:`grasp_jax.pipeline`).
+    With ``distributed=True`` (``grasp-jax sample --distributed``), or when
+    ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID`` are set,
+    :func:`initialize_distributed` calls :func:`jax.distributed.initialize`. Process ``i`` of ``P``
+    then scores the slice :func:`slice_bounds` of the grasps and writes its own file
+    :func:`part_path` (see :mod:`grasp_jax.pipeline`).
 
 Nothing here imports JAX at module level.
 """

@@ -1,29 +1,17 @@
 """Score millions of candidate grasps with flat memory: sample, evaluate, (baseline), stream out.
 
 :func:`run` draws ``num`` random grasps of an object chunk by chunk
-(:func:`grasp_jax.sampling.iter_grasps`), scores each chunk with :func:`grasp_jax.evaluate`
-(sharded over every local device), optionally adds the qhull Ferrari-Canny baseline, and streams
-the results to a ``.npz`` or ``.parquet`` file (:mod:`grasp_jax.storage`). Only one chunk of
-grasps is in memory at a time, so 10^7 grasps need the same memory as 10^5: the summary keeps
-running counts, a fixed histogram of Q (for its percentiles) and the best few grasps.
+(:func:`grasp_jax.sampling.iter_grasps`, the next chunk sampled in a background thread), scores
+each with :func:`grasp_jax.evaluate` (sharded over every local device), optionally adds the qhull
+Ferrari-Canny baseline, and streams the results to a ``.npz`` or ``.parquet`` file
+(:mod:`grasp_jax.storage`). One chunk is in memory at a time; the summary keeps running counts, a
+histogram of Q and the best few grasps (:mod:`grasp_jax.summary`). :func:`score_file` does the
+same for grasps stored in a file.
 
-Sampling of the next chunk runs in a background thread while the current one is scored.
-
-:func:`score_file` does the same for grasps stored in a file.
-
-Devices and processes are set up by :mod:`grasp_jax.devices` (one XLA device per CPU core,
-:func:`grasp_jax.devices.initialize_distributed`); the running statistics, the best grasps and the
-printed summary are :mod:`grasp_jax.summary`.
-
-Several hosts
-    With ``distributed=True`` (``grasp-jax sample --distributed``; call
-    :func:`grasp_jax.devices.initialize_distributed` first), every process samples the same
-    seeded stream of ``num`` grasps, scores only its contiguous slice
-    ``[num * i // P, num * (i + 1) // P)`` for process ``i`` of ``P`` on its own local devices,
-    and writes its own file ``<stem>.<i>-of-<P><suffix>`` with the slice in the metadata.
-    Concatenating the files in process order gives exactly the single-process result. No
-    collective is used, so processes never wait for each other; each prints the summary of its
-    slice. (Tested with two processes on one machine; not on several hosts.)
+With ``distributed=True`` (:func:`grasp_jax.devices.initialize_distributed` first), every process
+samples the same seeded stream, scores its contiguous slice ``[num * i // P, num * (i + 1) // P)``
+and writes ``<stem>.<i>-of-<P><suffix>``; the files in process order concatenate to the
+single-process result. No collective is used.
 """
 
 from __future__ import annotations

@@ -1,39 +1,18 @@
 """Result files: streaming, atomic writers and readers for ``.npz`` and ``.parquet``.
 
-A result file holds one row per grasp:
+A result file holds one row per grasp: ``points``, ``normals`` ``(N, n, d)``, ``force_closure``,
+``quality`` (Q) and ``converged`` ``(N,)``, plus the columns of the options that made it (the qhull
+baseline, ``grasp-jax optimize``, ``--robust N``, ``--gripper parallel-jaw``; listed in
+docs/guides/result-files.md), and a metadata dictionary (object, mu, edges, fingers, seed, ...).
 
-* ``points``, ``normals``: ``(N, n, d)`` float, the contacts (``d`` in {2, 3});
-* ``force_closure`` ``(N,)`` bool and ``quality`` ``(N,)`` float (the paper's Q);
-* ``converged`` ``(N,)`` bool (every LP of the grasp ended optimal or certified);
-* ``epsilon``, ``volume`` ``(N,)`` float when the qhull baseline was asked for;
-* from ``grasp-jax optimize`` (one row per start): ``initial_points`` ``(N, n, d)`` float,
-  ``objective`` ``(N,)`` float (the best objective reached), ``reason`` ``(N,)`` int8
-  (:class:`grasp_jax.EndReason`), ``history`` and ``quality_history`` ``(N, steps)`` float (the
-  objective and Q at each step);
-* with ``--robust N`` (:func:`grasp_jax.robust` over N perturbations): ``p_fc`` (P(force-closure)),
-  ``q_mean``, ``q_low`` (the low quantile of Q), ``margin_mean``, ``margin_low`` (of the min-weight
-  margin), their standard errors ``p_fc_se``, ``q_mean_se``, ``margin_mean_se`` ``(N,)`` float
-  and ``robust_unconverged`` ``(N,)`` int32;
-* from ``grasp-jax sample --gripper parallel-jaw``: the jaw poses ``center``, ``axis``, ``approach``
-  ``(N, 3)`` float, ``width`` ``(N,)`` float and ``jaw_status`` ``(N,)`` int8
-  (:class:`grasp_jax.grippers.JawStatus`);
+* ``.npz``: one ``.npy`` array per field and the metadata as JSON in a 0-d string array
+  ``metadata``: ``json.loads(str(f["metadata"]))``.
+* ``.parquet``: one row per grasp, ``points`` and ``normals`` as nested ``fixed_size_list`` of
+  double; the metadata as JSON under the key ``grasp_jax`` of the schema metadata.
 
-plus a metadata dictionary (object, mu, edges, fingers, seed, scheme, num, torque_test,
-grasp_jax version, date, ...).
-
-* ``.npz``: one ``.npy`` array per field (uncompressed, readable with ``numpy.load``) and the
-  metadata as a 0-d string array ``metadata`` holding JSON: ``json.loads(str(f["metadata"]))``.
-* ``.parquet``: one row per grasp; ``points`` and ``normals`` are ``fixed_size_list`` (fingers) of
-  ``fixed_size_list`` (d) of double, ``history`` and ``quality_history`` ``fixed_size_list``
-  (steps) of double; the metadata is JSON under the key ``grasp_jax`` of the
-  schema metadata.
-
-Writers take the grasps chunk by chunk with flat memory (``.npz``: each field is appended to a
-scratch file and the archive is assembled at the end; ``.parquet``: one row group per chunk) and
-are atomic: everything is written to a hidden temporary file in the destination directory,
-flushed, ``fsync``-ed and renamed over the destination with :func:`os.replace` only when the
-writer is closed without error. An exception, ``Ctrl-C`` or a crash leaves no file at the
-destination (a hard kill can leave a hidden ``.<name>.*.tmp`` behind, never a partial result).
+Writers take the grasps chunk by chunk with flat memory and are atomic: a hidden temporary file in
+the destination directory, ``fsync``-ed and moved over the destination with :func:`os.replace`
+only when the writer closes without error.
 """
 
 from __future__ import annotations

@@ -1,23 +1,16 @@
 """Antipodal parallel-jaw grasps, sampled in the manner of Dex-Net's ``AntipodalGraspSampler``.
 
 For each grasp: a point ``p`` uniform by area on the surface, a closing direction ``v`` uniform
-(by area of the cone's cross-section) inside the inward friction cone of ``p`` (half-angle
-``atan(mu)``), the whole line ``p + s v`` cast onto the mesh (one trimesh ray query for all
-grasps), the opposite point ``q``: the first hit beyond ``p``. The jaw centre is the midpoint of
-``p`` and ``q``, the axis ``v``, the opening ``clip(|q - p| + 2 clearance, min_width,
-max_width)``, and the jaws are closed on the same line (:func:`jaw_contacts`'s rules), so the
-contacts are where the jaws stop, not the sampled point (they differ where other surface lies on
-the line). The approach is uniform on the circle orthogonal to the axis; with the collision
-check, up to ``approach_tries`` such approaches are tried in turn and the first at which the
-gripper body is clear of the object is kept (as Dex-Net searches approach angles around the axis).
+inside the inward friction cone of ``p`` (half-angle ``atan(mu)``), and the first hit ``q`` of the
+line ``p + s v`` beyond ``p`` (one trimesh ray query for all grasps). The jaw centre is the
+midpoint, the axis ``v``, the opening ``clip(|q - p| + 2 clearance, min_width, max_width)``, and
+the jaws close on that line (:func:`jaw_contacts`), so the contacts are where the jaws stop. The
+approach is uniform on the circle about the axis; with the collision check, up to
+``approach_tries`` approaches are tried and the first clear one kept.
 
-Unlike Dex-Net, nothing is rejected: every candidate is returned with its :class:`JawStatus`,
-and the friction test is left to the scorer (``grasp_jax.evaluate`` with soft contacts, through
-:func:`score_grasps`).
-
-Reproducibility: grasps are drawn in blocks of :data:`BLOCK`; block ``b`` uses
-``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(b,)))``, so the grasps depend on
-the mesh, ``num``, ``mu``, the gripper, ``clearance`` and ``seed`` only, not on how
+Nothing is rejected: every candidate comes with its :class:`JawStatus`, and the friction test is
+the scorer's (:func:`score_grasps`). Grasps are drawn in blocks of :data:`BLOCK`, block ``b`` from
+``np.random.SeedSequence(seed, spawn_key=(b,))``, so they do not depend on how
 :func:`iter_antipodal_grasps` chunks them.
 """
 

@@ -1,37 +1,18 @@
 """Robust labels of parallel-jaw grasps: the closing line cast again under noise.
 
-A parallel-jaw grasp is a pose of the hand, not two free contacts: where the object or the hand is
-not where it was assumed to be, the jaws close on the line they are on and the contacts are where
-that line meets the surface. :func:`robust_jaws` draws ``samples`` perturbations of every grasp
-(a :class:`grasp_jax.Noise`, with the units and draws of :func:`grasp_jax.robust`), casts each
-perturbed closing line onto the mesh (:func:`jaw_contacts`: all grasps x samples in one vectorised
-ray query per slice) and scores the contacts through the scoring path of :func:`grasp_jax.robust`
-(the single-grasp programs of :func:`grasp_jax.evaluate` and :func:`grasp_jax.min_weight`,
-batched by ``_batch.map_grasps``).
+A jaw grasp is a pose of the hand: under noise the jaws close on the line they are on.
+:func:`robust_jaws` draws ``samples`` perturbations of every grasp (a :class:`grasp_jax.Noise`,
+with the units and draws of :func:`grasp_jax.robust`), casts each perturbed closing line onto the
+mesh (:func:`jaw_contacts`) and scores the contacts through the scoring path of
+:func:`grasp_jax.robust`. Per grasp and sample (object centre ``o``, radius ``r``):
 
-The noise, per grasp and sample (object centre ``o``, radius ``r``: ``obj.center``, ``obj.radius``):
+* ``position``: the jaw centre moves by ``r * position * (g_1 x + g_2 y)`` across the closing axis;
+* ``rotation``, ``translation``: the object moves by ``x -> R (x - o) + o + r t`` under the hand;
+* ``normal``, ``friction``: as :func:`grasp_jax.robust` draws them per contact slot (jaw 0, jaw 1).
 
-* ``position``: the gripper's positioning error: the jaw centre moves by ``r * position * (g_1 x +
-  g_2 y)`` in the plane orthogonal to the closing axis (``x``, ``y`` the axis's tangent frame,
-  ``g`` standard normal). A shift along the axis is left out: the jaws close on the same line and
-  meet the same surface (the hand, or the object, gives way until both jaws touch), so it would
-  only change whether a jaw starts inside the object, a question of the opening's clearance, not
-  of where the contacts are. The axis's direction errors are the pose noise's rotation.
-* ``rotation``, ``translation``: the object moves by ``x -> R (x - o) + o + r t`` under the fixed
-  gripper (as :func:`grasp_jax.robust`): in the object's frame the gripper moves by the inverse,
-  centre ``R^T (c - o - r t) + o``, axis ``R^T u``, approach ``R^T a``.
-* ``normal``, ``friction``: the normals of the new contacts are tilted and each jaw's friction is
-  drawn as :func:`grasp_jax.robust` does (per contact slot: jaw 0, jaw 1).
-
-A perturbation whose jaws do not close on two contacts (the line misses, the object is wider than
-the opening, the contacts are closer than the gripper's smallest opening, or the body collides
-with ``collision=True``: any :class:`JawStatus` but ``OK``) counts as not force-closure, Q 0,
-margin 0.
-
-Common random numbers: the draws are :func:`grasp_jax._robust.draws` of the key for ``n = 2``
-contacts in 3D (the jaw centre's step takes the tangent draws of slot 0), the same for every
-grasp, so every grasp meets the same perturbations, and the pose, tilt and friction draws are
-those :func:`grasp_jax.robust` gives the same key.
+A perturbation whose jaws do not close on two contacts (any :class:`JawStatus` but ``OK``) counts
+as not force-closure, Q 0, margin 0. The draws are :func:`grasp_jax._robust.draws` for ``n = 2``
+contacts in 3D, the same for every grasp and those :func:`grasp_jax.robust` gives the same key.
 """
 
 from __future__ import annotations

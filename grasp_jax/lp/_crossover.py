@@ -1,44 +1,18 @@
 """Crossover: from an interior-point solution to an optimal basis, with a certificate.
 
-In float32 an interior-point method ends *near* the optimum: its primal and dual residuals stop
-near ``1e-6`` relative, and along a badly conditioned optimal face the objective can still be
-``1e-4`` off (``experiments/float32_accuracy.py``: 8 to 312 grasps in 100,000 had
-``|Q32 - Q64| > 1e-4`` before this module). A vertex is another matter: its values solve one
-``r x r`` system, ``B x_B = b``, whose rounding is ``cond(B)`` times the unit roundoff, and it
-carries its own proof of optimality, ``x_B >= 0`` and reduced costs ``c - A^T y >= 0``.
+In float32 an interior-point method ends *near* the optimum (residuals near ``1e-6``, the
+objective up to ``1e-4`` off along a badly conditioned face); a vertex solves one ``r x r`` system
+``B x_B = b`` and carries its own proof of optimality. :func:`crossover` finds it from ``(x, y)``:
 
-:func:`crossover` finds that vertex from the interior-point solution ``(x, y)``:
+1. **Guess a basis**: columns ranked by reduced cost minus value, taken greedily among those at
+   least ``INDEPENDENCE`` (relative) away from the span of those taken (Gram-Schmidt).
+2. **Make it feasible**: the most negative basic column is replaced by one artificial column.
+3. **Pivot**: Harris's two-pass ratio test, phase one then two, Dantzig's rule (Bland's after a
+   degenerate pivot), dual pivots where needed; the basis inverse in product form.
+4. **Certify** with a fresh inverse: primal and dual feasibility within ``tol``, no artificial
+   weight, a nonsingular basis and a small backward error; an uncertified result is never used.
 
-1. **Guess a basis.** Columns are ranked by ``d_j - x_j`` (reduced cost minus value: basic
-   columns have ``d = 0, x > 0``, the others ``d > 0, x = 0``) and taken greedily, lowest first,
-   among those at least ``INDEPENDENCE`` (relative) away from the span of the columns already
-   taken (Gram-Schmidt), so the basis is well conditioned.
-2. **Make it feasible.** If ``x_B = B^{-1} b`` has negative entries, the most negative basic column
-   is replaced by one artificial column ``b - B v`` (``v = max(x_B, 0)`` without that entry), which
-   makes the basis feasible.
-3. **Pivot.** Simplex pivots with Harris's two-pass ratio test: phase one (minimize the
-   artificial weight) while the artificial column carries weight; then the artificial column, at
-   weight ~0, is driven out by a degenerate pivot; then phase two (the LP's costs) until every
-   reduced cost is ``>= -tol``, with Dantzig's rule, Bland's after a degenerate pivot (the
-   vertices of ``delta* = -1`` are degenerate, and Dantzig's rule cycled there); and a dual simplex
-   pivot where the basis is dual but not primal feasible. The basis inverse is updated in product
-   form. (A big-M cost was tried first: with ``M = 100`` it was too small on barely feasible
-   grasps and already spoiled float32 reduced costs by ``M`` times the roundoff.)
-4. **Certify** with a fresh inverse: ``x_B >= -tol``, reduced costs ``>= -tol``, no artificial
-   weight, a basis that is not singular, and refined solves with a small backward error (then the
-   value is that of the exact vertex of an LP a few roundoffs away, however ill-conditioned the
-   basis). An uncertified result is reported as such, never used.
-
-Measured (``experiments/float32_accuracy.py``, 100,000 grasps per shape, the eight shapes of the
-suite's reference sets): grasps with ``|Q32 - Q64| > 1e-4`` fell from 8..312 per shape to none
-(with ``_closure._polish_exact`` for grasps whose torques lie in a half-space), verdicts that
-differ outside the 1e-4 band from up to 26 to none (64 pivots after the full budget, 12 after the
-short first pass, ``_constants.Tolerances.crossover``; its cost in float32 throughput: docs/guides/precision.md).
-
-Everything is dense arithmetic on ``r <= 7`` rows, with one-hot products instead of gathers and
-scatters where they are hot, and rolled loops (the compile time of a chunk program matters as much
-as its run time): under ``jax.vmap`` every problem of a batch pivots in lock step, and no LAPACK
-call is made (see ``_batch``: LAPACK kernels and several CPU devices do not mix).
+Dense arithmetic on ``r <= 7`` rows, rolled loops, no LAPACK; its accuracy: docs/guides/precision.md.
 """
 
 from __future__ import annotations
@@ -78,9 +52,8 @@ TINY = 1e-9
 #: as singular and the vertex is not certified. Above it, an ill-conditioned basis is certified when
 #: the refined solves have a small backward error (:data:`BACKWARD`): then ``x_B`` and ``y`` are
 #: the exact vertex of an LP whose data moved by a few roundoffs, and the value is within
-#: ``|y| |dA| |x|`` of the optimum, whatever the basis's condition. (A threshold of 1e-4 on the
-#: pivot alone left correct vertices of condition 1e4 uncertified, and the interior-point value,
-#: 0.03 off, was reported: cylinder, 7 fingers.)
+#: ``|y| |dA| |x|`` of the optimum, whatever the basis's condition (a larger threshold on the
+#: pivot alone would leave correct vertices of condition 1e4 uncertified).
 CONDITION = 1e-6
 #: Largest backward error of the refined solves ``B x_B = b`` and ``B^T y = c_B``, in units of the
 #: roundoff times ``|B| |x_B| + |b|`` (resp. ``|B|^T |y| + |c_B|``).
@@ -89,10 +62,10 @@ BACKWARD = 64.0
 
 #: Largest sensitivity of a certified value to its LP's rounding, :func:`sensitivity`, in units of
 #: the unit roundoff: a vertex whose value moves by more than this many roundoffs when each entry of
-#: ``A`` moves by one is the exact answer of a nearby LP but not a reliable one for this LP. Measured
-#: (HiGHS's duals, float64): 3-16 on random grasps, 730 and 7,600 on the two ill-posed quality LPs
-#: of grasps whose torques lie in a half-space (``tests/test_dtypes.py``), whose float32 vertex moved
-#: by 6e-5 to 1.7e-4 between CPUs (issue 27). 1e-5 / float32 eps.
+#: ``A`` moves by one is the exact answer of a nearby LP but not a reliable one for this LP: random
+#: grasps score 3-16, the ill-posed quality LPs of grasps whose torques lie in a half-space
+#: (``tests/test_dtypes.py``) 730 and more, and their float32 vertex depends on the CPU's rounding.
+#: 1e-5 / float32 eps.
 SENSITIVE = 84.0
 
 

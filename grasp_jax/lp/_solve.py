@@ -16,8 +16,8 @@ def solve(*lps: LP, iterations: int | jax.Array | None = None, consistent: bool 
     """Solve one or more independent LPs in a single fused iteration loop.
 
     Each iteration advances every LP by one step; the loop ends when all are done (under
-    ``vmap``: all problems of the batch) or after ``iterations``. (Padding the LPs to one shape
-    and stacking them was measured 1.7x slower on the CPU.)
+    ``vmap``: all problems of the batch) or after ``iterations`` (faster on the CPU than padding
+    the LPs to one shape and stacking them).
 
     Args:
         *lps: problems in standard form; each may have its own shape. Each is *one* problem:

@@ -12,10 +12,9 @@ from ._problem import LP, LPSolution
 #: lanes (:func:`_stream`) instead of running them in lock step. Callers choose it by the size of
 #: their vmapped blocks (``_batch.map_grasps(block=)``).
 STREAM_MIN = 512
-#: Lanes of a streamed solve. Measured (8,192 quality or torque LPs of 4-finger grasps, one CPU
-#: device): 64 to 128 lanes in batches of 512 to 8,192 1.2x to 1.5x faster than lock-step blocks of
-#: 256 with the full budget, and 1.5x to 1.9x with warm starts (mean 4-5 iterations); 256 lanes
-#: slower (the per-lane work of the refill grows with the lanes).
+#: Lanes of a streamed solve: 64 to 128 lanes run full-budget or warm-started LPs 1.2x to 1.9x
+#: faster than lock-step blocks of 256 (docs/guides/performance.md); more lanes are slower, the
+#: refill's work growing with them.
 LANES = 128
 
 
@@ -96,8 +95,7 @@ def _stream(lps: LP, warm, weight, skip, iterations, restarts, consistent: bool,
         st = jax.vmap(lambda p, s: _advance(p, s, plan))(lp, st)
         carry = (ahead, index, lp, st, out)
         finished = _finished(st, plan) & (index < N)
-        # Every finished lane takes its next problem at once (refilling only once 16 or 32 lanes
-        # had finished, the others waiting frozen, measured within the noise).
+        # Every finished lane takes its next problem at once.
         return jax.lax.cond(jnp.any(finished), refill, lambda c, f: c, carry, finished)
 
     first = jnp.arange(lanes, dtype=jnp.int32)

@@ -1,33 +1,18 @@
 """What every surface offers: how one contact sits on, and moves over, one object kind.
 
-A *contact* is a small pytree (:class:`Contact`) that pins a point to the surface exactly:
+A *contact* (:class:`Contact`, a small pytree) pins a point to the surface: on simplicial surfaces
+(meshes, polygon boundaries) a ``face`` index and its barycentric ``coords``; on analytic shapes
+the point itself in ``coords``, kept on the surface by closed-form maps.
 
-* simplicial surfaces (triangle meshes, polygon boundaries): ``face`` is the index of a triangle
-  (or polygon edge) and ``coords`` its barycentric coordinates, ``(3,)`` (or ``(2,)``), >= 0,
-  summing to 1, so the point is on the surface up to rounding of one convex combination;
-* analytic shapes: ``face`` is unused (0) and ``coords`` is the point itself, ``(3,)``, which
-  closed-form maps keep on the surface.
-
-A :class:`Surface` is a pytree too (arrays as data, sizes and flags static), so it can be passed
-to ``jit``-compiled functions as an argument and every method is a pure JAX function of **one**
-contact (batch with ``jax.vmap``).
-
-The optimizer uses three methods. ``chart(c, v)`` is a smooth local parametrization of the
-surface around ``c`` by an ambient displacement ``v: (d,)`` (only its tangent part matters), with
-``chart(c, 0) == embed(c)``; ``jax.grad`` of an objective of ``chart(c, v)`` at ``v = 0`` is the
-objective's Riemannian gradient, in ambient coordinates. ``retract(c, v)`` moves the contact by
-the tangent part of ``v`` along the surface (across edges onto neighbouring faces, around
-polygon corners). Optax updates are ambient ``(n, d)`` arrays, so any optax transformation works.
-
-On a simplicial surface ``chart`` moves in the plane of the contact's face, so the Riemannian
-gradient is tangent to the face (not to the interpolated normal); ``retract`` takes the part of
-``v`` in that plane. A surface's leaves are NumPy arrays (float64 vertices etc., which take the
-caller's precision when traced); ``jax.device_put(surface)`` once, inside the precision scope the
-optimizer runs in, avoids copying them to the device on every call of a compiled step. The
-methods are compiled once per surface structure, so calling them outside ``jit`` is cheap too.
-A simplicial surface stops a ``retract`` after ``max_crossings`` faces (static, 16 by default;
-``for_object(..., max_crossings=)``); its ``walk(c, v)`` is ``retract`` plus the number of passes
-and the length of displacement left over, for diagnostics.
+A :class:`Surface` is a pytree (arrays as data, sizes and flags static), passed to compiled
+functions as an argument; every method is a pure JAX function of **one** contact. ``chart(c, v)``
+is a smooth local parametrization around ``c`` by an ambient displacement ``v: (d,)``, with
+``chart(c, 0) == embed(c)``: ``jax.grad`` through it at ``v = 0`` is the Riemannian gradient.
+``retract(c, v)`` moves the contact by the tangent part of ``v`` along the surface, across edges
+(at most ``max_crossings`` faces on a simplicial surface; ``walk`` also returns the passes and
+the displacement left over). On a simplicial surface both work in the plane of the contact's face.
+``jax.device_put(surface)`` once, inside the optimizer's precision scope, avoids copying its NumPy
+leaves on every call.
 """
 
 from __future__ import annotations
