@@ -1,0 +1,47 @@
+"""Does the grasp hold? A MuJoCo check of jaw (and hand) grasps, after DexGraspBench's protocol.
+
+The object is the convex decomposition of its mesh (cached per mesh), free and weightless; the
+gripper closes, squeezes, and a force pulls the object along each of six directions in turn
+(:class:`Protocol`). :func:`simulate_jaws` checks parallel-jaw grasps of :mod:`grasp_jax.grippers`
+over all cores; :func:`add_sim_columns` writes the outcome beside the labels of a result file.
+Nothing here imports JAX: the simulation needs MuJoCo, NumPy and trimesh
+(``pip install 'grasp_jax[sim]'``).
+"""
+
+from __future__ import annotations
+
+from ._columns import DIRECTION_COLUMNS as DIRECTION_COLUMNS
+from ._columns import SIM_COLUMNS as SIM_COLUMNS
+from ._columns import add_sim_columns as add_sim_columns
+from ._columns import sim_columns as sim_columns
+from ._jaws import DEFAULT_GRIPPER as DEFAULT_GRIPPER
+from ._jaws import simulate_jaws as simulate_jaws
+from ._object import MASS as MASS
+from ._object import Decomposition as Decomposition
+from ._object import SimObject as SimObject
+from ._object import cache_dir as cache_dir
+from ._object import decompose as decompose
+from ._object import sim_object as sim_object
+from ._protocol import DIRECTIONS as DIRECTIONS
+from ._protocol import Protocol as Protocol
+from ._protocol import SimResult as SimResult
+from ._protocol import SimStatus as SimStatus
+
+__all__ = [
+    "simulate_jaws",
+    "add_sim_columns",
+    "sim_columns",
+    "SIM_COLUMNS",
+    "DIRECTION_COLUMNS",
+    "Protocol",
+    "SimResult",
+    "SimStatus",
+    "DIRECTIONS",
+    "Decomposition",
+    "SimObject",
+    "decompose",
+    "sim_object",
+    "cache_dir",
+    "MASS",
+    "DEFAULT_GRIPPER",
+]

@@ -1,0 +1,106 @@
+"""The simulated outcome as columns of a result file, written atomically beside its labels.
+
+Columns: ``sim_success`` (bool), ``sim_status`` (int8, :class:`SimStatus`) and one bool column
+per force direction (:data:`DIRECTION_COLUMNS`, in the order of :data:`DIRECTIONS`). The file is
+rewritten whole to a temporary file and renamed into place; an error leaves the file as it was.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..storage import PARQUET_KEY, ResultFile, check_output_path, metadata as stamp, write_atomically
+from ._protocol import DIRECTIONS, Protocol, SimResult
+
+#: The per-direction columns, in the order of :data:`DIRECTIONS`.
+DIRECTION_COLUMNS = tuple(f"sim_{'pos' if d[0] == '+' else 'neg'}_{d[1]}" for d in DIRECTIONS)
+#: Every column :func:`add_sim_columns` writes.
+SIM_COLUMNS = ("sim_success", "sim_status") + DIRECTION_COLUMNS
+#: The columns a result file needs for a jaw simulation.
+JAW_COLUMNS = ("center", "axis", "approach", "width")
+
+
+def sim_columns(result: SimResult) -> dict[str, np.ndarray]:
+    """The columns of :data:`SIM_COLUMNS` of a :class:`SimResult`."""
+    cols = {"sim_success": np.asarray(result.success, bool), "sim_status": np.asarray(result.status, np.int8)}
+    for j, name in enumerate(DIRECTION_COLUMNS):
+        cols[name] = np.asarray(result.directions[:, j], bool)
+    return cols
+
+
+def _write_npz(path: Path, arrays: dict, meta: dict) -> None:
+    payload = {name: a for name, a in arrays.items()}
+    payload["metadata"] = np.array(json.dumps(meta))
+    write_atomically(path, lambda f: np.savez(f, **payload), mode="wb", what="result file")
+
+
+def _write_parquet(source: Path, path: Path, columns: dict, meta: dict) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(source)
+    for name, values in columns.items():
+        if name in table.column_names:
+            table = table.drop_columns([name])
+        table = table.append_column(name, pa.array(values))
+    schema_meta = dict(table.schema.metadata or {})
+    schema_meta[PARQUET_KEY] = json.dumps(meta).encode()
+    table = table.replace_schema_metadata(schema_meta)
+    write_atomically(path, lambda f: pq.write_table(table, f), mode="wb", what="result file")
+
+
+def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | None = None, seed: int = 0,
+                    workers: int | None = None, progress: bool = False, mesh_name: str | None = None) -> Path:
+    """Simulate the jaw grasps of a result file and add :data:`SIM_COLUMNS` to it, atomically.
+
+    Args:
+        path: a ``.npz`` or ``.parquet`` result file with the jaw pose columns ``center``,
+            ``axis``, ``approach`` ``(N, 3)`` and ``width`` ``(N,)`` (``grasp-jax sample
+            --gripper parallel-jaw``).
+        mesh: the object the grasps were sampled on (``trimesh.Trimesh`` or
+            :class:`grasp_jax.objects.Mesh`).
+        out: where to write (default: replace ``path``); same format as ``path``.
+        gripper: the :class:`~grasp_jax.grippers.ParallelJaw`; default: the file's metadata
+            ``gripper``, else :data:`grasp_jax.sim.DEFAULT_GRIPPER`.
+        protocol, seed, workers, progress: as :func:`grasp_jax.sim.simulate_jaws`.
+        mesh_name: what to record as the object in the metadata's ``sim`` entry.
+
+    Returns:
+        The path written. Columns of the same names already in the file are replaced.
+
+    Raises:
+        ValueError: the file lacks a needed column (one sentence naming them), or as
+            :func:`~grasp_jax.sim.simulate_jaws`; nothing is written then.
+    """
+    from ..grippers import ParallelJaw
+    from ._jaws import DEFAULT_GRIPPER, simulate_jaws
+
+    source = ResultFile(path)
+    missing = [c for c in JAW_COLUMNS if c not in source.fields]
+    if missing:
+        raise ValueError(f"{str(source.path)!r} has no {missing}: simulating jaw grasps needs the columns "
+                         f"{list(JAW_COLUMNS)} (grasp-jax sample --gripper parallel-jaw writes them)")
+    target = source.path if out is None else check_output_path(out)
+    if target.suffix.lower() != source.path.suffix.lower():
+        raise ValueError(f"out must have the format of {str(source.path)!r}; got {str(target)!r}")
+    if gripper is None and isinstance(source.metadata.get("gripper"), dict):
+        gripper = ParallelJaw.from_dict(source.metadata["gripper"])
+    gripper = DEFAULT_GRIPPER if gripper is None else gripper
+    protocol = Protocol() if protocol is None else protocol
+    arrays = source.read()
+    result = simulate_jaws(mesh, arrays["center"], arrays["axis"], arrays["approach"], arrays["width"],
+                           gripper=gripper, protocol=protocol, seed=seed, workers=workers, progress=progress)
+    cols = sim_columns(result)
+    meta = dict(source.metadata)
+    meta["sim"] = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name,
+                        gripper=gripper.to_dict(), directions=list(DIRECTIONS))
+    if source.format == "npz":
+        arrays.update(cols)
+        _write_npz(target, arrays, meta)
+    else:
+        _write_parquet(source.path, target, cols, meta)
+    return target
