@@ -20,8 +20,6 @@ from ._shown import _SERIES, ShownGrasps
 #: Faces of a displayed mesh; larger meshes are decimated (quadric decimation where
 #: ``fast_simplification`` is installed, else :func:`grasp_jax.viz.decimate`'s vertex clustering).
 MAX_FACES = 20_000
-#: Bins of the page's Q histogram.
-HISTOGRAM_BINS = 60
 #: Values of an array column shown in a hover label (the rest elided).
 _MAX_HOVER_VALUES = 12
 
@@ -221,7 +219,6 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
         titles.append("Q against step (drawn grasps)")
     fig = make_subplots(rows=rows, cols=2, column_widths=[0.64, 0.36], row_heights=heights, specs=specs,
                         horizontal_spacing=0.03, vertical_spacing=0.11, subplot_titles=titles)
-    always: list[bool] = []  # per trace: drawn whatever grasp is selected
     owner: list[int] = []  # per trace: grasp rank, or -1
 
     def add(trace, r=-1, row=1, col=1):

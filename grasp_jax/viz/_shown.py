@@ -11,6 +11,8 @@ from .. import storage
 
 #: Grasps drawn by default.
 DEFAULT_TOP = 10
+#: Bins of the page's Q histogram.
+HISTOGRAM_BINS = 60
 _SERIES = ("history", "quality_history")
 
 
