@@ -75,12 +75,20 @@ class Scene:
         return self.data.xipos[self.obj].copy(), self.data.xquat[self.obj].copy()
 
 
+#: Time steps between two updates of a ramp's controls, and between two checks of the object's motion.
+STRIDE = 5
+
+
 def ramp(scene: Scene, start: np.ndarray, stop: np.ndarray, steps: int) -> None:
-    """Move the controls linearly from ``start`` to ``stop`` over ``steps`` steps."""
+    """Move the controls linearly from ``start`` to ``stop`` over ``steps`` steps (in stairs of
+    :data:`STRIDE` steps)."""
     mj, m, d = scene.mj, scene.model, scene.data
-    for i in range(1, steps + 1):
-        d.ctrl[:] = start + (stop - start) * (i / steps)
-        mj.mj_step(m, d)
+    done = 0
+    while done < steps:
+        n = min(STRIDE, steps - done)
+        done += n
+        d.ctrl[:] = start + (stop - start) * (done / steps)
+        mj.mj_step(m, d, n)
 
 
 def _angle(q: np.ndarray, ref: np.ndarray) -> float:
@@ -91,7 +99,7 @@ def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None
     """The six force tests from the state saved in ``scene.state``: ``(held (6,) bool,
     displacement (6,), rotation (6,), diverged bool)``, the object's motion measured from
     ``reference`` (centre of mass, quaternion; default: its pose in the saved state). A direction
-    stops as soon as the object leaves the tolerance."""
+    stops at the first check (every :data:`STRIDE` steps) that finds the object out of the tolerance."""
     mj, m, d = scene.mj, scene.model, scene.data
     held = np.zeros(6, bool)
     disp, rot = np.zeros(6), np.zeros(6)
@@ -101,10 +109,13 @@ def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None
         mj.mj_forward(m, d)
         com0, quat0 = scene.pose() if reference is None else reference
         d.xfrc_applied[scene.obj, :3] = force * direction
-        ok = True
-        for _ in range(steps):
-            mj.mj_step(m, d)
-            dx = float(np.linalg.norm(d.xipos[scene.obj] - com0))
+        ok, done = True, 0
+        while done < steps:
+            n = min(STRIDE, steps - done)
+            done += n
+            mj.mj_step(m, d, n)
+            delta = d.xipos[scene.obj] - com0
+            dx = float(np.sqrt(delta @ delta))
             da = _angle(d.xquat[scene.obj], quat0)
             disp[k], rot[k] = max(disp[k], dx), max(rot[k], da)
             if dx >= protocol.max_displacement or da >= protocol.max_rotation or not np.isfinite(dx):
@@ -132,8 +143,7 @@ def run_episode(scene: Scene, protocol: Protocol, pregrasp: np.ndarray, target: 
         return SimStatus.PENETRATION, np.zeros(6, bool), nan, nan
     start = scene.pose()
     ramp(scene, pregrasp, target, protocol.steps(protocol.close_time))
-    for _ in range(protocol.steps(protocol.squeeze_time)):
-        mj.mj_step(m, d)
+    mj.mj_step(m, d, protocol.steps(protocol.squeeze_time))
     if scene.diverged():
         return SimStatus.UNSTABLE, np.zeros(6, bool), nan, nan
     mj.mj_forward(m, d)

@@ -2,14 +2,15 @@
 
 Every grasp is simulated from a reset state by a simulator built once per worker from the same
 arguments, so the result of a grasp depends on neither the chunking nor the number of workers.
-Workers are forked from a fresh server process (``forkserver``), never from the caller, whose
-threads (JAX's, for one) a fork would copy mid-flight.
+Workers are forked from the caller while no JAX backend runs in it (a cheap start), else from a
+fresh server process (``forkserver``): a fork would copy JAX's threads mid-flight.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 
 #: Grasps per task handed to a worker.
 CHUNK = 16
@@ -35,7 +36,15 @@ def _chunk(task):
     return [_SIM.run(start + i, *(a[i] for a in arrays)) for i in range(len(arrays[0]))]
 
 
+def _jax_running() -> bool:
+    bridge = sys.modules.get("jax._src.xla_bridge")
+    return bool(getattr(bridge, "_backends", True)) if bridge is not None else False
+
+
 def _context():
+    methods = multiprocessing.get_all_start_methods()
+    if "fork" in methods and not _jax_running():
+        return multiprocessing.get_context("fork")
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload([__name__, "mujoco", "numpy"])
     return ctx

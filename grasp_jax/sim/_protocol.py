@@ -76,9 +76,9 @@ class Protocol:
     solref: tuple = (0.004, 1.0)
     solimp: tuple = (0.95, 0.99, 0.001)
     timestep: float = 0.002
-    close_time: float = 0.3
-    squeeze_time: float = 0.2
-    hold_time: float = 0.3
+    close_time: float = 0.2
+    squeeze_time: float = 0.1
+    hold_time: float = 0.2
     max_displacement: float = 0.02
     max_rotation: float = math.radians(15.0)
     reference: str = "start"
