@@ -45,9 +45,9 @@ def test_centred_grasp_holds_and_beside_fails(box):
 
 
 def test_grasp_at_the_edge_of_a_long_face_fails():
-    """Jaws on the far edge of a 30 cm bar's face: the load turns the bar about the closing axis."""
-    bar = trimesh.creation.box(extents=(0.04, 0.3, 0.04))
-    c, a, p, w = _poses([[0, 0, 0], [0, 0.13, 0]], [1, 0, 0], [0, 0, 1], 0.06)
+    """Jaws on the far edge of a 40 cm bar's face: the load turns the bar about the closing axis."""
+    bar = trimesh.creation.box(extents=(0.04, 0.4, 0.04))
+    c, a, p, w = _poses([[0, 0, 0], [0, 0.18, 0]], [1, 0, 0], [0, 0, 1], 0.06)
     r = sim.simulate_jaws(bar, c, a, p, w, gripper=GRIPPER, workers=1)
     assert r.success.tolist() == [True, False]
     assert r.status.tolist() == [sim.SimStatus.OK, sim.SimStatus.OK]
