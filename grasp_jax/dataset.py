@@ -490,7 +490,7 @@ def plot_summary(out, path=None) -> Path | None:
     force-closure rate, median Q of its force-closure grasps and, with robust labels, mean
     P(force-closure), one row per object. Written atomically to ``path`` (default
     ``out/_summary.png``); ``None`` where no object is done yet."""
-    from . import plotting, storage
+    from . import storage, viz
 
     out = Path(out)
     rows = {k: r for k, r in sorted(_records(out).items()) if r.get("status") == "done"}
@@ -502,7 +502,7 @@ def plot_summary(out, path=None) -> Path | None:
               ("median Q (force-closure grasps)", [rows[k].get("quality_p50") or 0.0 for k in names])]
     if any(rows[k].get("p_fc_mean") is not None for k in names):
         panels.append(("mean P(force-closure) under noise", [rows[k].get("p_fc_mean") or 0.0 for k in names]))
-    plt = plotting._pyplot()  # noqa: SLF001 - the Agg backend
+    plt = viz.pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 2.0, 0.28 * len(names) + 1.4),
                              sharey=True, dpi=100)
     try:

@@ -73,7 +73,7 @@ def plot_summary(args, obj, summary, mu, edges) -> None:
 def plot_best(obj, best, *, mu: float, num_edges: int, path: Path, title: str | None = None) -> Path:
     """Draw the grasps of a :class:`grasp_jax.summary.BestGrasps` on ``obj`` in one figure (atomic)."""
     from ..viz import plot_grasp_2d, plot_grasp_3d
-    from ..viz._draw import pyplot
+    from ..viz import pyplot
 
     plt = pyplot()
     k = len(best)
@@ -109,7 +109,7 @@ def plot_robust(file: Path, path: Path) -> Path | None:
     """Nominal Q against P(force-closure) of a result file with robust labels (``--robust N``:
     column ``p_fc``), and the histogram of P(force-closure) of the nominally force-closure grasps
     and of the others, in one figure (atomic); ``None`` where the file has no ``p_fc``."""
-    from ..viz._draw import pyplot
+    from ..viz import pyplot
 
     src = storage.ResultFile(file)
     if "p_fc" not in src.fields:

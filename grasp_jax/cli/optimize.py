@@ -208,7 +208,7 @@ def _sampled_quality(args, obj, fingers, mu, edges, starts):
 
 def _plot_optimization(args, obj, result, best, sampled, mu, edges) -> None:
     from ..viz import plot_optimization
-    from ..viz._draw import pyplot
+    from ..viz import pyplot
 
     plt = pyplot()
     if result.quality_history is not None:
