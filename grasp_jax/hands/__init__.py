@@ -11,3 +11,10 @@ from ._hand import Hand as Hand
 from ._kinematics import forward as forward
 from ._load import builtin as builtin
 from ._load import load as load
+from ._result import HandGraspResult as HandGraspResult
+from ._result import HandStatus as HandStatus
+from ._result import load as load_result
+from ._sdf import ObjectGeometry as ObjectGeometry
+from ._sdf import geometry as geometry
+from ._synthesize import synthesize as synthesize
+from ._energy import Weights as Weights

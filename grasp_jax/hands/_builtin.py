@@ -12,10 +12,10 @@ import math
 #: Name :func:`grasp_jax.hands.load` knows for the built-in hand.
 DEFAULT_NAME = "default"
 
-_PALM_RADIUS = 0.045
+_PALM_RADIUS = 0.05
 _PALM_HALF = 0.01
-_FINGER_RADIUS = 0.035
-_PROXIMAL, _DISTAL, _TIP = 0.05, 0.032, 0.009
+_FINGER_RADIUS = 0.045
+_PROXIMAL, _DISTAL, _TIP = 0.06, 0.04, 0.009
 _WIDTH = 0.016
 
 
@@ -29,7 +29,7 @@ def _finger(i: int, azimuth: float) -> str:
   <joint name="f{i}_j0" type="revolute">
     <parent link="palm"/><child link="f{i}_proximal"/>
     <origin xyz="{x:.9f} {y:.9f} {_PALM_HALF}" rpy="0 0 {azimuth:.9f}"/>
-    <axis xyz="0 -1 0"/><limit lower="-0.4" upper="1.6" effort="5" velocity="3"/>
+    <axis xyz="0 -1 0"/><limit lower="-0.5" upper="1.6" effort="5" velocity="3"/>
   </joint>
   <link name="f{i}_distal">
     <collision><origin xyz="0 0 {_DISTAL / 2}" rpy="0 0 0"/>

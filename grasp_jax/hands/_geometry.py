@@ -23,10 +23,10 @@ from ._hand import FIXED, Collision
 SAMPLES = 600
 #: Largest collision-sphere radius (m) and spheres per link at most.
 MAX_RADIUS = 0.012
-SPHERES_PER_LINK = 12
+SPHERES_PER_LINK = 8
 #: Contact candidates per finger, and the cosine between a candidate's normal and the flexion
 #: direction above which a surface point counts as palm-facing.
-CANDIDATES = 4
+CANDIDATES = 16
 FACING_COS = 0.6
 
 
@@ -81,6 +81,18 @@ def _sample(meshes, count: int, seed: int):
     mesh = trimesh.util.concatenate(meshes) if len(meshes) > 1 else meshes[0]
     points, faces = trimesh.sample.sample_surface(mesh, count, seed=seed)
     return np.asarray(points), np.asarray(mesh.face_normals[faces])
+
+
+def _outer_samples(meshes, seed: int):
+    """Samples of the union's outer surface: those of each mesh not inside another one."""
+    points, normals = _sample(meshes, SAMPLES, seed)
+    if len(meshes) == 1:
+        return points, normals
+    outside = np.ones(len(points), bool)
+    for m in meshes:
+        if m.is_watertight:
+            outside &= trimesh.proximity.signed_distance(m, points) < 1e-6  # trimesh: positive inside
+    return (points[outside], normals[outside]) if outside.sum() >= CANDIDATES else (points, normals)
 
 
 def link_spheres(collisions, num_links: int, seed: int = 0):
@@ -158,12 +170,20 @@ def closing_signs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(up) & (down > up), -1.0, 1.0)
 
 
+def opened(lower: np.ndarray, upper: np.ndarray, closing: np.ndarray, share: float = 0.5) -> np.ndarray:
+    """``(J,)`` the opened configuration: from 0 (clipped to the limits) ``share`` of the way to
+    the opening limit."""
+    ref = np.clip(0.0, lower, upper)
+    room = np.where(closing > 0, ref - lower, upper - ref)
+    return ref - closing * share * np.where(np.isfinite(room), room, 0.0)
+
+
 def candidates(body_meshes, joint_origin, joint_axis, prismatic: bool, seed: int = 0):
     """``(points (K, 3), normals (K, 3))`` palm-facing candidates of one distal body.
 
     ``body_meshes``: its collision meshes in its own frame; ``joint_origin, joint_axis``: its last
     moving joint's origin and axis in that frame (the joint value rises as the finger closes)."""
-    points, normals = _sample(body_meshes, SAMPLES, seed)
+    points, normals = _outer_samples(body_meshes, seed)
     arm = points - joint_origin
     flex = np.broadcast_to(joint_axis, points.shape) if prismatic else np.cross(joint_axis, arm)
     flex = flex / np.maximum(np.linalg.norm(flex, axis=1, keepdims=True), 1e-12)

@@ -60,7 +60,8 @@ class Hand:
             the frame of link ``finger_link[f]``.
         palm: ``(3, 3)`` rows: the palm's centre, its normal (the side the fingers close towards)
             and the fingers' direction, in the root frame, at the opened configuration.
-        open_joints: ``(J,)`` the opened pre-grasp configuration starts jitter.
+        open_joints: ``(J,)`` the opened pre-grasp configuration starts jitter (half-way from 0
+            to the opening limits).
         closing: ``(J,)`` +1 or -1: the sign of the joint motion that closes the hand (the side
             of the larger limit: positive on Allegro and LEAP, negative on the Barrett file).
         parent: static ``(L,)`` parent link of each link (``-1`` for the root).

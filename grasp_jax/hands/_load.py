@@ -48,8 +48,8 @@ def load(spec=DEFAULT_NAME, *, candidates=None, seed: int = 0) -> Hand:
     renumber = {f: distal.index(b) for f, b in enumerate(every) if b in distal}
     finger = [renumber.get(f, -1) for f in finger]
     lower, upper = tree.lower, tree.upper
-    open_joints = np.clip(0.0, lower, upper)
     closing = geo.closing_signs(lower, upper)
+    open_joints = geo.opened(lower, upper, closing)
     centers, radii, links = geo.link_spheres(tree.collisions, len(tree.order), seed)
     points, normals = [], []
     for b in distal:

@@ -1,0 +1,126 @@
+"""Hand grasps: grasp_jax's closure objective against DexGraspNet's energy, real hands, YCB objects.
+
+For each hand (Allegro, LEAP, the built-in default hand) and each YCB object of hand size in
+``../shared/data/meshes``: ``grasp_jax.hands.synthesize`` from the same starts with
+``objective="closure"`` (grasp_jax's force-closure objective, the same LPs as ``gj.optimize``)
+and ``objective="dfc"`` (DexGraspNet's energy), scored by ``gj.evaluate`` (soft contacts,
+mu = 0.5) on the mesh. Valid = force-closure, penetration <= 1 mm, every contact within 2 mm.
+Reports valid rate, Q, penetration, valid grasps per second (compilation included) and the
+programs compiled for each object (0 after the first object: the SDF grid is data). Writes
+``results.md``, ``results.json`` and ``best_grasps.png``.
+
+    python experiments/hand_grasps.py --starts 256 --steps 100
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from _common import SHARED_MESHES, Timer, parser, table, write, write_json  # noqa: E402
+from grasp_jax import _batch, hands, objects  # noqa: E402
+from grasp_jax.hands import _geometry  # noqa: E402
+from grasp_jax.hands._kinematics import forward  # noqa: E402
+
+HANDS_DIR = SHARED_MESHES.parent / "hands"
+HANDS = {
+    "allegro": HANDS_DIR / "allegro_hand" / "allegro_hand_right.urdf",
+    "leap": HANDS_DIR / "leap_hand" / "leap_hand_right.urdf",
+    "default": "default",
+}
+#: YCB objects of hand size (largest extent 5 to 12 cm).
+OBJECTS = ("ycb_013_apple", "ycb_017_orange", "ycb_055_baseball", "ycb_005_tomato_soup_can", "ycb_009_gelatin_box",
+           "ycb_010_potted_meat_can", "ycb_061_foam_brick", "ycb_077_rubiks_cube", "ycb_025_mug")
+
+
+def run_one(hand, obj, args, objective):
+    before = _batch.STATS["compiled"]
+    t0 = time.perf_counter()
+    result = hands.synthesize(hand, obj, starts=args.starts, steps=args.steps, seed=args.seed, objective=objective)
+    seconds = time.perf_counter() - t0
+    s = result.summary()
+    return result, {
+        "objective": objective, "valid_fraction": s["valid_fraction"],
+        "force_closure_fraction": s["force_closure_fraction"], "quality_median_valid": s["quality_median_valid"],
+        "penetration_median_mm": s["penetration_median_mm"],
+        "distance_median_mm": float(1e3 * np.median(np.abs(result.distance).max(axis=1))),
+        "seconds": seconds, "valid_per_second": float(result.valid.sum() / seconds),
+        "compiled": _batch.STATS["compiled"] - before, "status": s["status"],
+    }
+
+
+def draw(ax, hand, result, index, obj):
+    """The object's mesh and the posed hand's collision geometry of grasp ``index``."""
+    mesh = obj.mesh
+    faces = mesh.faces[:: max(1, len(mesh.faces) // 1500)]
+    ax.plot_trisurf(*mesh.vertices.T, triangles=faces, color="0.8", alpha=0.5, linewidth=0)
+    pose = np.concatenate([result.position[index], result.quaternion[index]])
+    frames = np.asarray(forward(hand, pose, result.joints[index]))
+    for c in hand.collisions:
+        m = _geometry.element_mesh(c)
+        m = m.simplify_quadric_decimation(face_count=200) if len(m.faces) > 400 else m
+        v = (frames[c.link][:3, :3] @ m.vertices.T).T + frames[c.link][:3, 3]
+        ax.plot_trisurf(*v.T, triangles=m.faces, color="tab:blue", alpha=0.35, linewidth=0)
+    ax.scatter(*result.points[index].T, color="red", s=25)
+    lo, hi = mesh.bounds[0] - 0.06, mesh.bounds[1] + 0.06
+    center, half = (lo + hi) / 2, (hi - lo).max() / 2
+    for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), center):
+        set_lim(c - half, c + half)
+    ax.set_axis_off()
+
+
+def main():
+    ap = parser("hand_grasps", __doc__)
+    ap.add_argument("--starts", type=int, default=256)
+    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--hands", nargs="+", default=list(HANDS), choices=list(HANDS))
+    ap.add_argument("--objects", nargs="+", default=list(OBJECTS))
+    ap.add_argument("--no-baseline", action="store_true", help="skip DexGraspNet's energy")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    timer = Timer()
+    rows, records, best = [], [], []
+    for hand_name in args.hands:
+        hand = hands.load(HANDS[hand_name])
+        for obj_name in args.objects:
+            obj = objects.load(SHARED_MESHES / f"{obj_name}.obj")
+            for objective in ("closure",) + (() if args.no_baseline else ("dfc",)):
+                result, rec = run_one(hand, obj, args, objective)
+                rec.update(hand=hand_name, object=obj_name)
+                records.append(rec)
+                print(hand_name, obj_name, objective, result, flush=True)
+                rows.append([hand_name, obj_name, objective, 100 * rec["valid_fraction"],
+                             100 * rec["force_closure_fraction"], rec["quality_median_valid"],
+                             rec["penetration_median_mm"], rec["distance_median_mm"], rec["valid_per_second"],
+                             rec["seconds"], rec["compiled"]])
+                if objective == "closure" and len(result.best()):
+                    best.append((hand, hand_name, obj_name, obj, result, int(result.best()[0])))
+        timer.lap(hand_name)
+    header = ["hand", "object", "objective", "valid %", "force-closure %", "Q median (valid)",
+              "penetration median (mm)", "largest contact distance median (mm)", "valid grasps/s",
+              "seconds (compile incl.)", "programs compiled"]
+    text = (f"# Hand grasps\n\n{args.starts} starts x {args.steps} steps per hand and object; soft contacts, "
+            f"mu = 0.5; valid = force-closure, penetration <= 1 mm, contacts within 2 mm.\n\n"
+            + table(header, rows) + "\n\n" + timer.report() + "\n")
+    print(text)
+    write(args.out, text)
+    write_json(args.out, {"starts": args.starts, "steps": args.steps, "runs": records})
+    if best:
+        cols = min(4, len(best))
+        fig = plt.figure(figsize=(4 * cols, 4 * ((len(best) + cols - 1) // cols)))
+        for k, (hand, hand_name, obj_name, obj, result, index) in enumerate(best):
+            ax = fig.add_subplot((len(best) + cols - 1) // cols, cols, k + 1, projection="3d")
+            draw(ax, hand, result, index, obj)
+            ax.set_title(f"{hand_name} / {obj_name[4:]}\nQ = {result.quality[index]:.3f}", fontsize=9)
+        fig.tight_layout()
+        fig.savefig(Path(args.out) / "best_grasps.png", dpi=110)
+
+
+if __name__ == "__main__":
+    main()

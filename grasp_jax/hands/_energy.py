@@ -1,0 +1,98 @@
+"""What the hand optimizer minimizes, for **one** hand configuration on one object.
+
+* contacts: per finger, the candidate closest to the object (smallest signed distance), projected
+  to the surface along the SDF gradient, with the gradient as its outward normal;
+* ``-closure``: grasp_jax's own objective on those contacts (``_objectives.objective_one``, the
+  same LPs as ``gj.optimize``; or DexGraspNet's energy with ``kind="dfc"``);
+* distance: the contacts' distances to the surface;
+* penetration: the hand's collision spheres into the object (SDF) and the object's surface points
+  into the spheres;
+* self-collision: spheres of different fingers that overlap.
+
+Lengths are in units of the object's radius. Joint limits are kept by projection (the optimizer
+clips), not by an energy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._objectives import objective_one
+from ._hand import Hand
+from ._kinematics import forward, transform_points
+from ._sdf import ObjectGeometry, distance, distance_and_normal
+
+
+@dataclasses.dataclass(frozen=True)
+class Weights:
+    """Weights of the energy terms (static; hashable)."""
+
+    closure: float = 1.0
+    distance: float = 10.0
+    penetration: float = 100.0
+    self_collision: float = 30.0
+
+
+def contacts(hand: Hand, geom: ObjectGeometry, frames):
+    """``(points (F, 3), normals (F, 3), distances (F,), candidate (F,))``: each finger's closest
+    candidate projected to the surface, its SDF normal, its signed distance, its index."""
+    pts = transform_points(frames, jnp.asarray(hand.finger_link)[:, None], hand.candidate_point)  # (F, K, 3)
+    d = jax.vmap(jax.vmap(lambda x: distance(geom, x)))(pts)
+    k = jnp.argmin(d, axis=1)
+    chosen = jnp.take_along_axis(pts, k[:, None, None], axis=1)[:, 0]
+    dist, normal = jax.vmap(lambda x: distance_and_normal(geom, x))(chosen)
+    return chosen - dist[:, None] * normal, normal, dist, k
+
+
+def spheres(hand: Hand, frames):
+    """``(centers (S, 3), radii (S,))`` of the collision spheres in the world."""
+    return transform_points(frames, hand.sphere_link, hand.sphere_center), hand.sphere_radius
+
+
+def penetration(hand: Hand, geom: ObjectGeometry, frames) -> tuple[jax.Array, jax.Array]:
+    """``(sum of depths, largest depth)`` (m) of the spheres into the object and of the object's
+    surface points into the spheres."""
+    centers, radii = spheres(hand, frames)
+    into_object = jax.nn.relu(radii - jax.vmap(lambda x: distance(geom, x))(centers))
+    gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
+    into_hand = jax.nn.relu(radii[None] - gap)
+    return jnp.sum(into_object) + jnp.sum(into_hand), jnp.maximum(jnp.max(into_object), jnp.max(into_hand))
+
+
+def self_collision(hand: Hand, frames, pairs) -> jax.Array:
+    """Sum of the overlaps (m) of the sphere pairs ``pairs: (2, P)`` (spheres of two fingers)."""
+    centers, radii = spheres(hand, frames)
+    a, b = pairs
+    gap = jnp.sqrt(jnp.sum((centers[a] - centers[b]) ** 2, axis=-1) + 1e-30)
+    return jnp.sum(jax.nn.relu(radii[a] + radii[b] - gap))
+
+
+def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *, kind: str, num_edges: int,
+           iterations: int, contact: str, weights: Weights):
+    """``(energy (), monitors)`` of one configuration (``pose: (7,)`` wxyz, ``joints: (J,)``)."""
+    frames = forward(hand, pose, joints)
+    points, normals, dist, _ = contacts(hand, geom, frames)
+    value, _ = objective_one(points, normals, mu, num_edges, kind, geom.center, geom.scale, iterations,
+                             best_effort=True, contact=contact, torsion=torsion)
+    pen_sum, pen_max = penetration(hand, geom, frames)
+    collide = self_collision(hand, frames, pairs)
+    scale = geom.scale
+    total = (-weights.closure * value + weights.distance * jnp.sum(jnp.abs(dist)) / scale
+             + weights.penetration * pen_sum / scale + weights.self_collision * collide / scale)
+    return total, {"objective": value, "distance": jnp.max(jnp.abs(dist)), "penetration": pen_max}
+
+
+def finger_pairs(hand: Hand):
+    """``(2, P) int32`` the sphere pairs of different fingers, on the two outer links of each
+    finger (its distal link, the links fixed to it, and its parent), where fingers touch."""
+    finger = np.asarray(hand.sphere_finger)
+    outer = set(hand.finger_link) | {hand.parent[b] for b in hand.finger_link}
+    outer |= {i for i in range(hand.num_links) if hand.parent[i] in outer and hand.joint_kind[i] == 0}
+    near = np.isin(np.asarray(hand.sphere_link), sorted(outer))
+    a, b = np.triu_indices(len(finger), 1)
+    keep = (finger[a] >= 0) & (finger[b] >= 0) & (finger[a] != finger[b]) & near[a] & near[b]
+    return np.stack([a[keep], b[keep]]).astype(np.int32)
