@@ -140,3 +140,41 @@ def test_add_sim_columns(tmp_path, box, suffix):
         sim.add_sim_columns(bare, box, workers=1)
     assert bare.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == sorted(
         [path.name, bare.name])
+
+
+# hands -----------------------------------------------------------------------------------------
+
+def _hand():
+    hands = pytest.importorskip("grasp_jax.hands")
+    return hands.load("default")
+
+
+def _hand_grasps(hand, positions, quaternions, closing=(0.0, 0.6)):
+    """Grasps of the built-in hand: every first joint at ``closing[0]``, every second at
+    ``closing[1]`` (pre-grasp: opened), the squeeze 0.3 rad further."""
+    from types import SimpleNamespace
+
+    names = hand.joint_names
+    grasp = np.array([closing[0] if n.endswith("_j0") else closing[1] for n in names])
+    pregrasp = np.where([n.endswith("_j0") for n in names], -0.25, 0.0)
+    k = len(positions)
+    return SimpleNamespace(position=np.asarray(positions, float), quaternion=np.asarray(quaternions, float),
+                           joints=np.tile(grasp, (k, 1)), pregrasp=np.tile(pregrasp, (k, 1)),
+                           squeeze=np.tile(grasp + 0.3, (k, 1)))
+
+
+def test_hand_grasps():
+    """The built-in hand closing on a ball above its palm holds it, also with the wrist turned; the
+    same grasp with the hand 0.5 m away never touches the ball and fails."""
+    hand = _hand()
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    turn = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0])          # 90 degrees about x
+    below = np.array([0, 0, -0.042])
+    turned = np.array([0, 0.042, 0])                                        # R_x(90) @ below
+    res = _hand_grasps(hand, [below, turned, [0.5, 0, 0]], [[1, 0, 0, 0], turn, [1, 0, 0, 0]])
+    r = sim.simulate_hand(hand, ball, res, workers=1)
+    assert r.success.tolist() == [True, True, False]
+    assert r.status.tolist() == [sim.SimStatus.OK, sim.SimStatus.OK, sim.SimStatus.NO_CONTACT]
+    with pytest.raises(ValueError, match="joints"):
+        res.joints = res.joints[:, :-1]
+        sim.simulate_hand(hand, ball, res, workers=1)

@@ -3,7 +3,7 @@
 The object is the convex decomposition of its mesh (cached per mesh), free and weightless; the
 gripper closes, squeezes, and a force pulls the object along each of six directions in turn
 (:class:`Protocol`). :func:`simulate_jaws` checks parallel-jaw grasps of :mod:`grasp_jax.grippers`
-over all cores; :func:`add_sim_columns` writes the outcome beside the labels of a result file.
+and :func:`simulate_hand` the hand grasps of :mod:`grasp_jax.hands`, over all cores; :func:`add_sim_columns` writes the outcome beside the labels of a result file.
 Nothing here imports JAX: the simulation needs MuJoCo, NumPy and trimesh
 (``pip install 'grasp_jax[sim]'``).
 """
@@ -15,6 +15,7 @@ from ._columns import SIM_COLUMNS as SIM_COLUMNS
 from ._columns import add_sim_columns as add_sim_columns
 from ._columns import sim_columns as sim_columns
 from ._jaws import DEFAULT_GRIPPER as DEFAULT_GRIPPER
+from ._hands import simulate_hand as simulate_hand
 from ._jaws import simulate_jaws as simulate_jaws
 from ._object import MASS as MASS
 from ._object import Decomposition as Decomposition
@@ -29,6 +30,7 @@ from ._protocol import SimStatus as SimStatus
 
 __all__ = [
     "simulate_jaws",
+    "simulate_hand",
     "add_sim_columns",
     "sim_columns",
     "SIM_COLUMNS",

@@ -95,16 +95,19 @@ def _angle(q: np.ndarray, ref: np.ndarray) -> float:
     return float(2.0 * np.arccos(min(1.0, abs(float(q @ ref)))))
 
 
-def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None = None):
+def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None = None,
+         frame: np.ndarray | None = None):
     """The six force tests from the state saved in ``scene.state``: ``(held (6,) bool,
     displacement (6,), rotation (6,), diverged bool)``, the object's motion measured from
-    ``reference`` (centre of mass, quaternion; default: its pose in the saved state). A direction
-    stops at the first check (every :data:`STRIDE` steps) that finds the object out of the tolerance."""
+    ``reference`` (centre of mass, quaternion; default: its pose in the saved state), the forces
+    along the columns of ``frame`` (3, 3) (default: the world's axes). A direction stops at the
+    first check (every :data:`STRIDE` steps) that finds the object out of the tolerance."""
     mj, m, d = scene.mj, scene.model, scene.data
     held = np.zeros(6, bool)
     disp, rot = np.zeros(6), np.zeros(6)
     steps = protocol.steps(protocol.hold_time)
-    for k, direction in enumerate(DIRECTION_VECTORS):
+    directions = DIRECTION_VECTORS if frame is None else DIRECTION_VECTORS @ np.asarray(frame).T
+    for k, direction in enumerate(directions):
         mj.mj_setState(m, d, scene.state, scene.state_spec)
         mj.mj_forward(m, d)
         com0, quat0 = scene.pose() if reference is None else reference
@@ -128,21 +131,25 @@ def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None
     return held, disp, rot, False
 
 
-def run_episode(scene: Scene, protocol: Protocol, pregrasp: np.ndarray, target: np.ndarray, force: float):
+def run_episode(scene: Scene, protocol: Protocol, controls, force: float, frame: np.ndarray | None = None):
     """Play the protocol from the state set in ``scene.data`` (gripper at its pre-grasp, object at
     rest): ``(status, held (6,) bool, displacement (6,), rotation (6,))``.
 
-    ``pregrasp`` and ``target`` are the actuators' controls at the start and at the squeeze; the
-    controls move linearly between them over ``close_time`` and stay at ``target`` for
-    ``squeeze_time``. With ``Protocol.reference == "start"`` the object's motion is measured from
+    ``controls`` are the actuators' controls at the pre-grasp, then at each later waypoint (the
+    grasp, the squeeze): they move linearly from the pre-grasp to the next over ``close_time``,
+    then to each further one over ``squeeze_time``, and stay at the last for ``squeeze_time``. The
+    forces pull along the columns of ``frame`` (the object's axes; default the world's). With ``Protocol.reference == "start"`` the object's motion is measured from
     its pose before the gripper closes, so an object that the closing turns or pushes away fails."""
     mj, m, d = scene.mj, scene.model, scene.data
     nan = np.full(6, np.nan)
-    d.ctrl[:] = pregrasp
+    controls = [np.asarray(c, float) for c in controls]
+    d.ctrl[:] = controls[0]
     if scene.penetration() > protocol.penetration:
         return SimStatus.PENETRATION, np.zeros(6, bool), nan, nan
     start = scene.pose()
-    ramp(scene, pregrasp, target, protocol.steps(protocol.close_time))
+    for i in range(1, len(controls)):
+        seconds = protocol.close_time if i == 1 else protocol.squeeze_time
+        ramp(scene, controls[i - 1], controls[i], protocol.steps(seconds))
     mj.mj_step(m, d, protocol.steps(protocol.squeeze_time))
     if scene.diverged():
         return SimStatus.UNSTABLE, np.zeros(6, bool), nan, nan
@@ -150,7 +157,7 @@ def run_episode(scene: Scene, protocol: Protocol, pregrasp: np.ndarray, target: 
     if scene.touching() < 2:
         return SimStatus.NO_CONTACT, np.zeros(6, bool), nan, nan
     mj.mj_getState(m, d, scene.state, scene.state_spec)
-    held, disp, rot, bad = hold(scene, protocol, force, start if protocol.reference == "start" else None)
+    held, disp, rot, bad = hold(scene, protocol, force, start if protocol.reference == "start" else None, frame)
     if bad:
         return SimStatus.UNSTABLE, np.zeros(6, bool), disp, rot
     return SimStatus.OK, held, disp, rot

@@ -17,7 +17,7 @@ from ..grippers._gripper import ParallelJaw
 from ._episode import Scene, run_episode
 from ._object import sim_object
 from ._pool import run_batched
-from ._protocol import Protocol, SimResult, SimStatus
+from ._protocol import Protocol, SimResult
 from ._scene import gripper_geom_defaults, object_assets, object_body, option
 
 #: The gripper simulated where none is given: the proportions of ``ParallelJaw.scaled(0.1)``.
@@ -88,7 +88,7 @@ class JawSim:
         start = np.full(2, 0.5 * (g.max_width - width))
         d.qpos[m.jnt_qposadr[m.actuator_trnid[:, 0]]] = start
         closed = np.full(2, 0.5 * (g.max_width - g.min_width))
-        return run_episode(scene, p, start, closed, self.force)
+        return run_episode(scene, p, [start, closed], self.force)
 
 
 def simulate_jaws(mesh, centers, axes, approaches, widths, *, gripper: ParallelJaw | None = None,
@@ -130,13 +130,4 @@ def simulate_jaws(mesh, centers, axes, approaches, widths, *, gripper: ParallelJ
     init = (xml, _body_gripper(gripper), protocol, protocol.force_magnitude, int(seed))
     rows = run_batched(JawSim, init, (centers, axes, approaches, widths), workers=workers,
                        progress=progress, desc="simulating jaw grasps")
-    return _collect(rows)
-
-
-def _collect(rows) -> SimResult:
-    status = np.array([int(r[0]) for r in rows], np.int8)
-    held = np.array([r[1] for r in rows], bool).reshape(-1, 6)
-    success = held.all(axis=1) & (status == SimStatus.OK)
-    disp = np.array([r[2] for r in rows], float).reshape(-1, 6)
-    rot = np.array([r[3] for r in rows], float).reshape(-1, 6)
-    return SimResult(success, held, status, disp, rot)
+    return SimResult.from_rows(rows)

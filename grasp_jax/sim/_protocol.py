@@ -169,6 +169,16 @@ class SimResult(NamedTuple):
         return len(self.success)
 
     @staticmethod
+    def from_rows(rows) -> SimResult:
+        """A result from per-grasp rows ``(status, held (6,), displacement (6,), rotation (6,))``."""
+        status = np.array([int(r[0]) for r in rows], np.int8)
+        held = np.array([r[1] for r in rows], bool).reshape(-1, 6)
+        success = held.all(axis=1) & (status == SimStatus.OK)
+        disp = np.array([r[2] for r in rows], float).reshape(-1, 6)
+        rot = np.array([r[3] for r in rows], float).reshape(-1, 6)
+        return SimResult(success, held, status, disp, rot)
+
+    @staticmethod
     def concatenate(parts) -> SimResult:
         """One result from several, in order."""
         parts = list(parts)
