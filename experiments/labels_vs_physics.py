@@ -205,6 +205,7 @@ def main(argv=None):
     ap.add_argument("--robust", type=int, default=20, help="samples of the robust labels")
     ap.add_argument("--sigma-pos", type=float, default=0.05, help="position noise, object radii")
     ap.add_argument("--sigma-rot", type=float, default=0.05, help="rotation noise, radians")
+    ap.add_argument("--jaw-force", type=float, default=None, help="Protocol.jaw_force (default: the Protocol's)")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--progress", action="store_true")
     args = ap.parse_args(argv)
@@ -218,7 +219,8 @@ def main(argv=None):
 
     timer = Timer()
     gripper = grippers.ParallelJaw.scaled(args.max_width)
-    protocol = sim.Protocol(friction=args.mu, decomposition=sim.Decomposition(threshold=args.threshold))
+    extra = {} if args.jaw_force is None else {"jaw_force": args.jaw_force}
+    protocol = sim.Protocol(friction=args.mu, decomposition=sim.Decomposition(threshold=args.threshold), **extra)
     per_object, base, data, pooled_values, pooled_hit, counts = {}, {}, {}, {}, [], {}
     for name in args.objects:
         path = SHARED_MESHES / f"{name}.obj"
