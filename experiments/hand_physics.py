@@ -61,7 +61,7 @@ def main(argv=None):
             result = hands.synthesize(hand, obj, starts=args.starts, steps=args.steps, seed=args.seed)
             synth_s = time.perf_counter() - t
             valid = np.flatnonzero(np.asarray(result.valid, bool))
-            rec = {"hand": hand_name, "object": obj_name, "starts": args.starts, "valid": int(len(valid)),
+            rec = {"hand": hand_name, "object": obj_name, "starts": args.starts, "valid": len(valid),
                    "synthesize_s": synth_s}
             if len(valid):
                 t = time.perf_counter()

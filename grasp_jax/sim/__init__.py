@@ -14,8 +14,8 @@ from ._columns import DIRECTION_COLUMNS as DIRECTION_COLUMNS
 from ._columns import SIM_COLUMNS as SIM_COLUMNS
 from ._columns import add_sim_columns as add_sim_columns
 from ._columns import sim_columns as sim_columns
-from ._jaws import DEFAULT_GRIPPER as DEFAULT_GRIPPER
 from ._hands import simulate_hand as simulate_hand
+from ._jaws import DEFAULT_GRIPPER as DEFAULT_GRIPPER
 from ._jaws import simulate_jaws as simulate_jaws
 from ._object import MASS as MASS
 from ._object import Decomposition as Decomposition
@@ -29,21 +29,21 @@ from ._protocol import SimResult as SimResult
 from ._protocol import SimStatus as SimStatus
 
 __all__ = [
-    "simulate_jaws",
-    "simulate_hand",
-    "add_sim_columns",
-    "sim_columns",
-    "SIM_COLUMNS",
+    "DEFAULT_GRIPPER",
+    "DIRECTIONS",
     "DIRECTION_COLUMNS",
+    "MASS",
+    "SIM_COLUMNS",
+    "Decomposition",
     "Protocol",
+    "SimObject",
     "SimResult",
     "SimStatus",
-    "DIRECTIONS",
-    "Decomposition",
-    "SimObject",
-    "decompose",
-    "sim_object",
+    "add_sim_columns",
     "cache_dir",
-    "MASS",
-    "DEFAULT_GRIPPER",
+    "decompose",
+    "sim_columns",
+    "sim_object",
+    "simulate_hand",
+    "simulate_jaws",
 ]

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..storage import PARQUET_KEY, ResultFile, check_output_path, metadata as stamp, write_atomically
+from ..storage import PARQUET_KEY, ResultFile, check_output_path, write_atomically
+from ..storage import metadata as stamp
 from ._protocol import DIRECTIONS, Protocol, SimResult
 
 #: The per-direction columns, in the order of :data:`DIRECTIONS`.

@@ -165,7 +165,7 @@ class SimResult(NamedTuple):
     displacement: np.ndarray
     rotation: np.ndarray
 
-    def __len__(self) -> int:  # noqa: D105 - the number of grasps, not of fields
+    def __len__(self) -> int:
         return len(self.success)
 
     @staticmethod
