@@ -19,12 +19,12 @@ import sys
 import threading
 
 from .. import __version__
-from . import dataset, demo, hand, optimize, sample, score, show
+from . import dataset, demo, hand, optimize, sample, score, show, simulate
 from ._options import DEFAULT_MU, DESCRIPTION, PROG, Formatter, Parser, UsageError, epilog
 from ._output import plot_best, plot_robust
 
 #: The commands, in the order ``grasp-jax --help`` lists them.
-COMMANDS = (sample, score, show, optimize, hand, dataset, demo)
+COMMANDS = (sample, score, show, optimize, hand, simulate, dataset, demo)
 
 __all__ = ["COMMANDS", "DEFAULT_MU", "PROG", "build_parser", "main", "plot_best", "plot_robust"]
 
