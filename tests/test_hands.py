@@ -140,3 +140,132 @@ def test_mimic_joint_follows_its_source(tmp_path, default_hand):
     assert hand.num_joints == 5 and "f0_j1" not in hand.joint_names
     urdf = yourdfpy.URDF.load(str(tmp_path / "hand.urdf"), load_meshes=False)
     _check_against_yourdfpy(hand, urdf, 20)
+
+
+# ---------------------------------------------------------------------------------------------
+# Candidates, object geometry, energies, synthesis (the default hand and built-in objects).
+
+
+@pytest.fixture(scope="module")
+def glass():
+    from grasp_jax import objects
+
+    return objects.load("glass")
+
+
+def test_candidates_face_the_palm(default_hand):
+    with float64_scope():
+        frames = np.asarray(hands.forward(default_hand, np.array([0, 0, 0, 1.0, 0, 0, 0]), default_hand.open_joints))
+    f, k = default_hand.candidate_point.shape[:2]
+    assert f == 3 and k >= 4
+    for i, link in enumerate(default_hand.finger_link):
+        normals = default_hand.candidate_normal[i] @ frames[link, :3, :3].T
+        points = default_hand.candidate_point[i] @ frames[link, :3, :3].T + frames[link, :3, 3]
+        inward = -points[:, :2] / np.linalg.norm(points[:, :2], axis=1, keepdims=True)  # towards the palm's axis
+        assert (np.sum(normals[:, :2] * inward, axis=1) > 0.3).all()
+    moved = default_hand.with_candidates(default_hand.candidate_point[:, :2], default_hand.candidate_normal[:, :2] * 3)
+    np.testing.assert_allclose(np.linalg.norm(moved.candidate_normal, axis=-1), 1.0)
+    with pytest.raises(ValueError, match=r"\(3, K, 3\)"):
+        default_hand.with_candidates(np.zeros((2, 2, 3)), np.ones((2, 2, 3)))
+
+
+def test_sdf_against_trimesh(glass):
+    import trimesh
+
+    geom = hands.geometry(glass)
+    assert geom.grid.shape == (48, 48, 48) and geom.points.shape == (64, 3)
+    rng = np.random.default_rng(0)
+    x = glass.center + rng.uniform(-1.2, 1.2, (400, 3)) * glass.radius
+    with float64_scope():
+        ours = np.asarray(jax.vmap(lambda p: hands._sdf.distance(geom, p))(x))
+    exact = -trimesh.proximity.signed_distance(glass.mesh, x)
+    near = np.abs(exact) < 0.1 * glass.radius
+    assert np.abs(ours - exact)[near].max() < 0.5 * float(geom.cell)
+    assert (np.sign(ours) == np.sign(exact))[np.abs(exact) > float(geom.cell)].all()
+    assert hands.geometry(glass) is geom  # cached
+
+
+def test_penetration_against_trimesh(default_hand, glass):
+    """The sphere penetration is zero when the posed collision geometry is outside the mesh (trimesh)
+    and positive when the hand is pushed through it."""
+    import trimesh
+
+    from grasp_jax.hands import _energy, _geometry
+
+    geom = hands.geometry(glass)
+    far = np.array([*(glass.center + [0, 0, 3 * glass.radius]), 1.0, 0, 0, 0])
+    inside = np.array([*(glass.center - [0, 0, 0.01]), 1.0, 0, 0, 0])
+    with float64_scope():
+        for pose, expect in ((far, False), (inside, True)):
+            frames = np.asarray(hands.forward(default_hand, pose, default_hand.open_joints))
+            depth = float(_energy.penetration(default_hand, geom, frames)[1])
+            meshes = [_geometry.element_mesh(c).apply_transform(frames[c.link]) for c in default_hand.collisions]
+            pts = np.concatenate([m.sample(300, return_index=False) for m in meshes])
+            exact = trimesh.proximity.signed_distance(glass.mesh, pts).max()
+            assert (exact > 0) == expect and (depth > 0) == expect
+
+
+@pytest.fixture(scope="module")
+def synthesized(default_hand, glass):
+    return hands.synthesize(default_hand, glass, starts=8, steps=20, seed=3)
+
+
+def test_synthesize_result(synthesized, default_hand, glass):
+    r = synthesized
+    assert len(r) == 8 and r.joints.shape == (8, 6) and r.points.shape == (8, 3, 3)
+    np.testing.assert_allclose(np.linalg.norm(r.quaternion, axis=1), 1.0)
+    assert (r.joints >= default_hand.lower - 1e-9).all() and (r.joints <= default_hand.upper + 1e-9).all()
+    assert (r.squeeze >= default_hand.lower - 1e-9).all() and (r.pregrasp <= default_hand.upper + 1e-9).all()
+    from grasp_jax import evaluate
+
+    ev = evaluate(r.points, r.normals, mu=0.5, contact="soft", torsion=hands._synthesize._torsion("soft", 0.5))
+    np.testing.assert_array_equal(np.asarray(ev.force_closure), r.force_closure)
+    expect = r.force_closure & (r.penetration <= 1e-3) & (np.abs(r.distance).max(axis=1) <= 2e-3)
+    np.testing.assert_array_equal(r.valid, expect)
+    assert (r.valid == (r.status == hands.HandStatus.VALID)).all()
+    assert len(r.messages()) == 8 and set(r.joints_by_name(0)) == set(default_hand.joint_names)
+    assert r.energy.shape == (8, 20) and np.isfinite(r.energy).all()
+
+
+def test_same_seed_same_starts(default_hand, glass, synthesized):
+    from grasp_jax.hands._synthesize import initial_configurations
+
+    pose, joints = initial_configurations(default_hand, hands.geometry(glass), 8, 3)
+    np.testing.assert_array_equal(pose, np.concatenate([synthesized.initial_position,
+                                                        synthesized.initial_quaternion], axis=1))
+    np.testing.assert_array_equal(joints, synthesized.initial_joints)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".parquet"])
+def test_save_and_load(synthesized, tmp_path, suffix):
+    path = synthesized.save(tmp_path / f"grasps{suffix}")
+    back = hands.load_result(path)
+    for name, value in synthesized.columns().items():
+        np.testing.assert_array_equal(getattr(back, name), value)
+    assert back.joint_names == synthesized.joint_names and back.hand == synthesized.hand
+    assert [p.name for p in tmp_path.iterdir()] == [f"grasps{suffix}"]
+    with pytest.raises(ValueError, match="must end in"):
+        synthesized.save(tmp_path / "grasps.txt")
+
+
+def test_second_object_compiles_nothing(default_hand, glass, synthesized):
+    """Another mesh runs the programs compiled for the first: the SDF grid is data."""
+    from grasp_jax import _batch, objects
+
+    box = objects.Mesh.from_trimesh(__import__("trimesh").creation.box(extents=(0.05, 0.04, 0.06)), name="box")
+    before = _batch.STATS["compiled"] + _batch.STATS["loaded"]
+    hands.synthesize(default_hand, box, starts=8, steps=20, seed=4)
+    assert _batch.STATS["compiled"] + _batch.STATS["loaded"] == before
+
+
+def test_bad_arguments(default_hand, glass):
+    with pytest.raises(ValueError, match="starts"):
+        hands.synthesize(default_hand, glass, starts=0)
+    with pytest.raises(ValueError, match="objective"):
+        hands.synthesize(default_hand, glass, objective="surrogate")
+    with pytest.raises(ValueError, match="Hand"):
+        hands.synthesize("default", glass)
+    from grasp_jax import objects
+
+    with pytest.raises(ValueError, match="3D mesh"):
+        hands.synthesize(default_hand, objects.load("star"))

@@ -32,9 +32,12 @@ class Weights:
     """Weights of the energy terms (static; hashable)."""
 
     closure: float = 1.0
-    distance: float = 10.0
-    penetration: float = 100.0
+    distance: float = 1000.0
+    penetration: float = 300.0
     self_collision: float = 30.0
+    #: Sphere penetration (m) left unpenalized: the spheres lie inside the links, so a little of it
+    #: lets a fingertip touch where a neighbouring link's sphere grazes the object.
+    allowance: float = 6e-4
 
 
 def contacts(hand: Hand, geom: ObjectGeometry, frames):
@@ -53,11 +56,11 @@ def spheres(hand: Hand, frames):
     return transform_points(frames, hand.sphere_link, hand.sphere_center), hand.sphere_radius
 
 
-def penetration(hand: Hand, geom: ObjectGeometry, frames) -> tuple[jax.Array, jax.Array]:
-    """``(sum of depths, largest depth)`` (m) of the spheres into the object and of the object's
-    surface points into the spheres."""
+def penetration(hand: Hand, geom: ObjectGeometry, frames, allowance=0.0) -> tuple[jax.Array, jax.Array]:
+    """``(sum of depths, largest depth)`` (m) of the spheres into the object (less
+    ``allowance``) and of the object's surface points into the spheres."""
     centers, radii = spheres(hand, frames)
-    into_object = jax.nn.relu(radii - jax.vmap(lambda x: distance(geom, x))(centers))
+    into_object = jax.nn.relu(radii - allowance - jax.vmap(lambda x: distance(geom, x))(centers))
     gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
     into_hand = jax.nn.relu(radii[None] - gap)
     return jnp.sum(into_object) + jnp.sum(into_hand), jnp.maximum(jnp.max(into_object), jnp.max(into_hand))
@@ -78,7 +81,7 @@ def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *
     points, normals, dist, _ = contacts(hand, geom, frames)
     value, _ = objective_one(points, normals, mu, num_edges, kind, geom.center, geom.scale, iterations,
                              best_effort=True, contact=contact, torsion=torsion)
-    pen_sum, pen_max = penetration(hand, geom, frames)
+    pen_sum, pen_max = penetration(hand, geom, frames, weights.allowance)
     collide = self_collision(hand, frames, pairs)
     scale = geom.scale
     total = (-weights.closure * value + weights.distance * jnp.sum(jnp.abs(dist)) / scale
