@@ -23,13 +23,13 @@ from ._contact import CONTACTS as CONTACTS
 from ._contact import dexnet_torsion as dexnet_torsion
 from ._contact import patch_torsion as patch_torsion
 from ._friction import FrictionStatus as FrictionStatus
+from ._noise import Noise as Noise
 from ._objectives import OBJECTIVES as OBJECTIVES
 from ._objectives import objective as objective
 from ._optimize import EndReason as EndReason
 from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import optimize as optimize
 from ._result import GraspEvaluation as GraspEvaluation
-from ._robust import Noise as Noise
 from ._robust import RobustResult as RobustResult
 from ._robust import perturb as perturb
 from ._robust import robust as robust

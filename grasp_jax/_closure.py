@@ -24,222 +24,33 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._contact import Columns, columns, wrench_columns
+from ._contact import wrench_columns
+from ._polish import open_half_space, polish_exact
+from ._programs import (
+    SHIFT,
+    about_first,
+    arm_scale,
+    full_rank,
+    gram_rank3,
+    grasp_quality_lp,
+    min_weight_certificate,
+    min_weight_lp,
+    min_weight_margin_of,
+    quality_bound,
+)
 from ._result import GraspEvaluation
-from ._wrench import cross
 from .lp import (
     LP,
     SENSITIVE,
     LPSolution,
     Status,
-    as_solution,
     has_value,
     optimal_value,
     polish,
     sensitivity,
     solve,
-    stacked,
     warm_point,
 )
-
-
-def _arm_scale(points: jax.Array) -> jax.Array:
-    """Largest distance from ``c_1`` to another contact (1 where all contacts coincide)."""
-    sq = jnp.max(jnp.sum((points - points[0]) ** 2, axis=-1))
-    # Double where: sqrt's derivative at 0 is inf, and a single where would turn it into NaN.
-    spread = sq > tolerances(points.dtype).tiny ** 2
-    return jnp.where(spread, jnp.sqrt(jnp.where(spread, sq, 1.0)), 1.0)
-
-
-def _torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:
-    """``(n, m, t)`` torques of the cone edges about ``c_1``, divided by the grasp's size."""
-    arm = (points - points[0]) / _arm_scale(points)
-    tau = cross(arm[:, None, :], edges)
-    return tau[..., None] if points.shape[-1] == 2 else tau
-
-
-# ---------------------------------------------------------------------------------------------
-# The LPs.
-
-
-#: ``delta >= -SHIFT`` is added to the quality LP to make it standard form. Any ``SHIFT >= 1``
-#: leaves the optimum unchanged (``delta* >= -1``); with 2 rather than 1 the bound is never active,
-#: which spares the interior-point method a degenerate optimal face on grasps whose only
-#: solution is the first contact alone (``delta* = -1``): 16 iterations fell to about 11 there.
-SHIFT = 2.0
-
-
-def about_first(points: jax.Array, normals: jax.Array, edges: jax.Array, contact: str = "hard", torsion=0.0) -> Columns:
-    """The wrench columns of a contact model (``_contact``) with torques about ``c_1`` divided by
-    the grasp's size: the columns of the quality and torque LPs."""
-    return columns(edges, _torques_about_first(points, edges), normals, contact, torsion, _arm_scale(points))
-
-
-def quality_lp(cols: Columns, edges: jax.Array) -> LP:
-    """The equilibrium LP of eq. (17)-(20) in the always-feasible normalized form.
-
-    ``max delta  s.t.  sum a_k f_k + delta z_1 = 0,  sum a_k tau_k = 0,  sum a = 1,  a >= 0``
-    over the columns ``(f_k, tau_k)`` of :func:`about_first` (hard contacts: the cone edges
-    ``v_ij`` and their torques ``tau_ij``) with ``delta`` free (``a = 1/m`` on contact 1's edges,
-    ``delta = -1`` is feasible for every contact model: soft columns come in pairs whose torsion
-    cancels). Then ``delta* > 0`` iff eq. (17) has a solution, and ``delta* = Q`` of eq. (23)
-    there (Charnes-Cooper). The standard form uses ``delta' = delta + SHIFT >= 0``: variables
-    ``(a_1..a_K, delta')``, rows ``(force: d, torque: 1 or 3, sum: 1)``. ``edges``: ``(n, m, d)``,
-    whose first cone gives ``z_1``.
-    """
-    z1 = jnp.mean(edges[0], axis=0)  # the mean of the first cone's edges is its axis
-    z1 = safe_normalize(z1)
-    K, t = cols.torque.shape
-    force_rows = jnp.concatenate([cols.force.T, z1[:, None]], axis=1)
-    torque_rows = jnp.concatenate([cols.torque.T, jnp.zeros((t, 1), edges.dtype)], axis=1)
-    sum_row = jnp.concatenate([jnp.ones((1, K), edges.dtype), jnp.zeros((1, 1), edges.dtype)], axis=1)
-    A = jnp.concatenate([force_rows, torque_rows, sum_row], axis=0)
-    b = jnp.concatenate([SHIFT * z1, jnp.zeros(t, edges.dtype), jnp.ones(1, edges.dtype)])
-    c = jnp.zeros(K + 1, edges.dtype).at[-1].set(-1.0)
-    return LP(A, b, c)
-
-
-def grasp_quality_lp(points, normals, mu, num_edges: int, tangents=None, contact: str = "hard", torsion=0.0
-                     ) -> tuple[LP, Columns]:
-    """The quality LP of one grasp from its contacts (normals normalized, cone edges, columns
-    about ``c_1``), and those columns."""
-    normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    cols = about_first(points, normals, edges, contact, torsion)
-    return quality_lp(cols, edges), cols
-
-
-def quality_bound(lp: LP, y: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """An upper bound on ``delta*`` of :func:`quality_lp` from any dual vector ``y``, by weak duality.
-
-    With ``u = y[:-1]`` (force and torque rows) scaled so that ``z_1 . u_f = -1``, every feasible
-    ``(a, delta)`` has ``delta = sum_ij a_ij (w_ij . u) <= max_ij w_ij . u`` (``sum a = 1``), where
-    ``w_ij`` are the LP's columns (cone edge and torque about ``c_1``). Returns ``(bound, slack)``:
-    ``slack`` bounds the rounding of the computed bound (``inf`` where ``u`` is no such direction).
-    """
-    A = lp.A
-    dt = A.dtype
-    scale = -(A[:-1, -1] @ y[:-1])
-    ok = scale > jnp.finfo(dt).eps
-    u = y[:-1] / jnp.where(ok, scale, 1.0)
-    bound = jnp.max(A[:-1, :-1].T @ u)
-    slack = 16.0 * jnp.finfo(dt).eps * (1.0 + jnp.max(jnp.abs(A[:-1, :-1]).T @ jnp.abs(u)))
-    return jnp.where(ok, bound, jnp.inf), jnp.where(ok, slack, jnp.inf)
-
-
-def min_weight_lp(vectors: jax.Array) -> LP:
-    """The min-weight LP ``max l s.t. sum alpha_k w_k = 0, sum alpha = 1, alpha_k >= l``.
-
-    Args:
-        vectors: ``(K, D)`` vectors ``w_k``.
-
-    ``l <= 1/K`` always, so with ``alpha = beta + 1/K - s`` the standard form has variables
-    ``(beta_1..beta_K, s) >= 0``, rows ``W beta - s W1 = -W1/K`` and ``1.beta - K s = 0``, and
-    minimizes ``s``; ``l* = 1/K - s*``. Infeasible iff no affine combination of the ``w_k`` is 0.
-    """
-    K, D = vectors.shape
-    W = vectors.T
-    w1 = jnp.sum(W, axis=1)
-    A = jnp.concatenate(
-        [
-            jnp.concatenate([W, -w1[:, None]], axis=1),
-            jnp.concatenate([jnp.ones((1, K), W.dtype), jnp.full((1, 1), -float(K), W.dtype)], axis=1),
-        ],
-        axis=0,
-    )
-    b = jnp.concatenate([-w1 / K, jnp.zeros(1, W.dtype)])
-    c = jnp.zeros(K + 1, W.dtype).at[-1].set(1.0)
-    return LP(A, b, c)
-
-
-def _min_weight_margin(vectors: jax.Array, sol: LPSolution) -> jax.Array:
-    """``l*`` from a solved :func:`min_weight_lp` (``-inf`` when infeasible, 0 if not converged)."""
-    K = vectors.shape[0]
-    return jnp.where(
-        sol.status == Status.OPTIMAL,
-        1.0 / K - sol.x[-1],
-        jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0),
-    )
-
-
-def _min_weight_certificate(vectors: jax.Array, sol: LPSolution) -> jax.Array:
-    """A direction ``u`` with ``u . w_k >= -l*`` for all k, from the dual of the min-weight LP."""
-    return -sol.y[: vectors.shape[1]]
-
-
-#: Squarings of the normalized Gram matrix that give the direction of its largest eigenvalue
-#: (:func:`full_rank`): after ``k``, a component along an eigenvalue ``lambda`` is scaled by
-#: ``(lambda / lambda_max)^(2^k)``, and the Rayleigh quotient of the result is within
-#: ``(D - 1) / (2^(k+1) e)`` relative of ``lambda_max`` in the worst case (a second eigenvalue just
-#: below the largest): 1e-3 for ``k = 10`` and ``D = 6``, i.e. the rank threshold moves by at most
-#: 0.1% of itself. No LAPACK call, so the programs run on every CPU device (``_batch``).
-SQUARINGS = 10
-
-
-def _positive_definite(M: jax.Array) -> jax.Array:
-    """Whether a small symmetric ``M`` is positive definite: every pivot of its unrolled
-    ``L D L^T`` factorization is positive (exact in exact arithmetic; backward stable, so a
-    computed verdict is that of a matrix within a few roundoffs of ``|M|``). No LAPACK, no loop."""
-    k = M.shape[0]
-    L = [[None] * k for _ in range(k)]
-    pivots = []
-    ok = jnp.ones((), bool)
-    for j in range(k):
-        d = M[j, j] - sum((L[j][p] * L[j][p] * pivots[p] for p in range(j)), start=jnp.zeros((), M.dtype))
-        ok = ok & (d > 0)
-        d = jnp.where(d > 0, d, 1.0)  # a failed pivot: the verdict is known, keep the rest finite
-        pivots.append(d)
-        for i in range(j + 1, k):
-            off = M[i, j] - sum((L[i][p] * L[j][p] * pivots[p] for p in range(j)), start=jnp.zeros((), M.dtype))
-            L[i][j] = off / d
-    return ok
-
-
-def full_rank(vectors: jax.Array) -> jax.Array:
-    """Whether ``(K, D)`` vectors span R^D: the least eigenvalue of their Gram matrix ``G`` exceeds
-    ``tolerances(dtype).rank`` times the largest.
-
-    Without an eigensolver (LAPACK calls keep a program on one CPU device, ``_batch``), and without
-    a loop: the largest eigenvalue is the Rayleigh quotient of a column of ``G^(2^k)`` (``k =``
-    :data:`SQUARINGS` squarings, each normalized by its trace), then ``G - rank * lambda_max * I``
-    is positive definite iff the least eigenvalue is above the threshold (:func:`_positive_definite`).
-    For ``D = 3`` use the closed form :func:`_gram_rank3`, which also gives a null vector.
-    """
-    tol = tolerances(vectors.dtype)
-    G = vectors.T @ vectors
-    D = G.shape[0]
-    tr = jnp.trace(G)
-    H = G / jnp.where(tr > tol.tiny, tr, 1.0)
-    for _ in range(SQUARINGS):
-        H = H @ H
-        H = H / jnp.maximum(jnp.trace(H), tol.tiny)
-    v = H @ jax.nn.one_hot(jnp.argmax(jnp.diagonal(H)), D, dtype=G.dtype)  # its largest column
-    top = (v @ G @ v) / jnp.maximum(v @ v, tol.tiny)
-    top = jnp.maximum(top, tr / D)  # never below the mean eigenvalue (a degenerate v)
-    return (tr > tol.tiny) & _positive_definite(G - tol.rank * top * jnp.eye(D, dtype=G.dtype))
-
-
-def _gram_rank3(vectors: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """:func:`_gram_rank` for ``D = 3`` in closed form (no eigensolver in the hot path).
-
-    Rank 3 iff ``det G / (tr G / 3)^3`` exceeds ``rank`` (this ratio lies between
-    ``(l_min/l_max)^2`` and ``27 l_min/l_max``; rounding leaves ~1e-16 on rank-2 sets). The null vector of a rank-2 Gram matrix is any
-    non-zero column of its adjugate; of a rank-1 matrix, a vector orthogonal to its largest row.
-    """
-    tol = tolerances(vectors.dtype)
-    G = vectors.T @ vectors
-    tr = jnp.trace(G)
-    g = G / jnp.where(tr > tol.tiny, tr, 1.0)
-    adj = jnp.stack([jnp.cross(g[1], g[2]), jnp.cross(g[2], g[0]), jnp.cross(g[0], g[1])])
-    det = jnp.dot(g[0], adj[0])
-    full = (tr > tol.tiny) & (det * 27.0 > tol.rank)
-    col = adj[jnp.argmax(jnp.sum(adj * adj, axis=1))]
-    row = g[jnp.argmax(jnp.sum(g * g, axis=1))]
-    perp = jnp.cross(row, jnp.eye(3, dtype=g.dtype)[jnp.argmin(jnp.abs(row))])
-    null = jnp.where(jnp.sum(col * col) > tol.rank**2, col, perp)
-    null = jnp.where(jnp.sum(null * null) > tol.tiny, null, jnp.eye(3, dtype=g.dtype)[2])
-    return full, safe_normalize(null)
-
 
 # ---------------------------------------------------------------------------------------------
 # Torque tests about c_1.
@@ -255,7 +66,7 @@ def paper_torque_test(tau: jax.Array) -> jax.Array:
     return jnp.all(total_abs - jnp.abs(jnp.sum(tau, axis=0)) > tol.margin * total_abs + tol.tiny)
 
 
-def _exact_torque_2d(tau: jax.Array):
+def exact_torque_2d(tau: jax.Array):
     """Scalar torques positively span R iff they take both signs. Returns (span, certificate)."""
     tol = tolerances(tau.dtype)
     t = tau[:, 0]
@@ -264,134 +75,6 @@ def _exact_torque_2d(tau: jax.Array):
     # When not spanning, t_cert * tau >= 0 for every torque (within the margin).
     t_cert = jnp.where(lo >= -tol.margin, 1.0, -1.0).astype(tau.dtype)
     return span, jnp.minimum(hi, -lo), t_cert[None]
-
-
-# ---------------------------------------------------------------------------------------------
-# float32: the quality LP of a grasp whose torques about c_1 lie in a half-space.
-
-#: A certified torque LP margin ``|l*|`` at most this (float32 rounding leaves ~1e-8 on exact zeros)
-#: means the torques lie in the closed half-space ``u . tau >= 0`` of its dual direction ``u`` and
-#: some on its boundary plane. (``l* < -HALF_SPACE``: all of them strictly inside an open
-#: half-space, which forces ``delta* = -1`` exactly, :func:`_open_half_space`.)
-HALF_SPACE = 1e-7
-#: Columns with ``u . tau_j`` above this fraction of ``max |tau_j|`` are off the plane ``u . tau = 0``
-#: (exactly: the torques of a box grasp's contacts on one face; the others are ~1e-8).
-OFF_PLANE = 1e-5
-#: Simplex pivots of the reduced quality LP, which starts from nothing (``x = y = 0``).
-REDUCED_PIVOTS = 64
-
-
-def _plane_basis(u: jax.Array) -> jax.Array:
-    """``(3, 3)`` orthonormal rows, the first ``u`` (unit)."""
-    a = jnp.eye(3, dtype=u.dtype)[jnp.argmin(jnp.abs(u))]
-    v1 = safe_normalize(a - (a @ u) * u)
-    return jnp.stack([u, v1, jnp.cross(u, v1)])
-
-
-def _half_space_quality_lp(q_lp: LP, u: jax.Array) -> tuple[LP, jax.Array]:
-    """The 3D quality LP (one zero column appended) when every torque satisfies ``u . tau >= 0``.
-
-    Then ``sum a_ij tau_ij = 0`` forces ``a_ij = 0`` on every column off the plane ``u . tau = 0``,
-    and the LP is degenerate: its optimal bases have condition ~1e5 in float32 and are not
-    certified (``lp._crossover.CONDITION``). Here those columns are removed (zeroed), the torque rows
-    are rotated to ``(u, v1, v2)`` and the ``u`` row, now empty up to rounding, fixes the appended
-    column at 1. Returns ``(lp, rotation)``.
-    """
-    A, b, c = q_lp
-    R = _plane_basis(u)
-    tau = A[3:6]
-    off = (u @ tau) > OFF_PLANE * jnp.max(jnp.abs(tau), axis=0)
-    rows = jnp.concatenate([A[:3], (R @ tau)[1:], A[6:]])
-    rows = jnp.where(off[None, :], 0.0, rows)
-    r, N = A.shape
-    A = jnp.concatenate([rows[:3], jnp.zeros((1, N), A.dtype), rows[3:]])
-    A = jnp.concatenate([A, jnp.eye(r, 1, -3, dtype=A.dtype)], axis=1)  # the unit column of row 3
-    b = b.at[3:6].set(R @ b[3:6]).at[3].set(1.0)
-    c = jnp.concatenate([jnp.where(off, 0.0, c), jnp.zeros(1, c.dtype)])
-    return LP(A, b, c), R
-
-
-def _original_dual(y: jax.Array, R: jax.Array) -> jax.Array:
-    """The dual vector of a :func:`_half_space_quality_lp` in the rows of the quality LP: torque
-    rows rotated back, 0 on the ``u`` row. Its reduced costs are those of the reduced LP on the
-    columns it kept; the removed ones are zero at every feasible point. (A ``u`` entry that also
-    prices them reaches 1e4 where ``u . tau_j`` is small, and the envelope value ``c.x -
-    y.(A x - b)`` then carried 1e-4 of the kept columns' rounding.)"""
-    return jnp.concatenate([y[:3], R.T @ y[3:6].at[0].set(0.0), y[6:]])
-
-
-def _open_half_space(t_polished) -> jax.Array:
-    """float32: whether the torque LP's certified vertex proves ``l* < -HALF_SPACE``, i.e. every
-    torque about ``c_1`` strictly inside an open half-space ``u . tau > 0``. Then no combination
-    of the other contacts' columns has zero torque, only contact 1's edges balance, and
-    ``delta* = -1`` exactly, whatever the quality LP's float32 solve says: on such a grasp a few
-    roundoffs in the data make the torques span (the torque margin -2.3e-7 of one cylinder-side
-    grasp, where float32's certified quality vertex read ``delta = 0.158``; in float64 moving the
-    inputs by 1e-8 flips its ``Q`` between 0 and 0.135). ``t_polished``: :func:`polish`'s triple."""
-    sol, certified, _ = t_polished
-    K = sol.x.shape[0] - 1
-    return certified & (1.0 / K - sol.x[-1] < -HALF_SPACE)
-
-
-def _polish_exact(q_lp: LP, t_lp: LP, q_sol: LPSolution, t_sol: LPSolution, pivots: tuple, full):
-    """:func:`polish` of the quality and torque LPs of a 3D exact evaluation (one :func:`stacked`
-    crossover), then a second round through the same compiled crossover (a loop of two rounds, the
-    second only where needed) for a grasp whose torque LP certifies ``|l*| <=`` :data:`HALF_SPACE`:
-    the quality LP again, in the reduced form of :func:`_half_space_quality_lp`, from nothing. On
-    such a grasp round one's vertex is never taken, even certified: the full quality LP is
-    ill-posed there (its optimal dual is ~1e4-1e5, against ~2-5 elsewhere, so a few roundoffs in
-    its data move ``delta*`` by up to 4e-3 and the vertex the crossover reaches depends on the
-    CPU's rounding order). Without a certified reduced vertex the quality LP stays uncertified.
-    ``t_sol``: the torque LP's interior-point solution, or zeros (``quality_one``: the crossover
-    then starts from nothing). ``full``: whether the quality LP had the full budget (may be
-    traced); then a full quality LP that round one does not certify runs again in round two, from
-    the interior point's dual alone. Returns :func:`polish`'s triples.
-
-    Such grasps are most of float32's rare ``|Q32 - Q64| > 1e-4`` (``experiments/float32_accuracy.py``);
-    the reduced LP's vertex is certified on them and within 1e-6 of float64's Q.
-    """
-    if all(isinstance(k, int) and not k for k in pivots):  # float64: no crossover
-        return [polish(q_lp, q_sol, 0), polish(t_lp, t_sol, 0)]
-    q_lp, t_lp = jax.lax.stop_gradient(q_lp), jax.lax.stop_gradient(t_lp)
-    r, N = q_lp.A.shape
-    K = t_lp.A.shape[1] - 1
-    dt = q_lp.A.dtype
-    wide = LP(jnp.pad(q_lp.A, ((0, 0), (0, 1))), q_lp.b, jnp.pad(q_lp.c, (0, 1)))
-    start = (wide, jnp.pad(q_sol.x, (0, 1)), q_sol.y)
-    budget = jnp.stack([jnp.asarray(k, jnp.int32) for k in pivots])
-
-    def body(carry):
-        k, (lp, x, y), budget, best, half, need = carry
-        (xq, yq, cq), (xt, yt, ct) = stacked((lp, t_lp), (x, t_sol.x), (y, t_sol.y), budget)
-        first = k == 0
-        # Round two keeps round one's torque vertex: that LP had no second pivot budget.
-        xt, yt, ct = (jnp.where(first, new, old) for new, old in zip((xt, yt, ct), best[3:]))
-        reduced, R = _half_space_quality_lp(q_lp, safe_normalize(-yt[:3]))
-        # On such a grasp round one's vertex, certified or not, is never the answer: the LP is
-        # ill-posed (a few roundoffs in its data move delta* by 1e-3) and the vertex found
-        # depends on the CPU's rounding order. Only the reduced LP's vertex is taken; without it
-        # the value stays uncertified.
-        half = jnp.where(first, ct & (jnp.abs(1.0 / K - xt[-1]) <= HALF_SPACE), half)  # l* ~ 0
-        # After the full budget, a full quality LP whose vertex round one did not certify runs
-        # again from the interior point's dual alone (x = 0): its primal iterate can lead the
-        # initial basis astray.
-        retry = first & ~cq & ~half & full
-        cq = jnp.where(first, cq & ~half, cq)
-        take = first | cq
-        xq = jnp.where(take, xq, best[0])
-        back = jnp.where(half, _original_dual(yq, R), yq)
-        yq = jnp.where(first, yq, jnp.where(cq, back, best[1]))
-        cq = jnp.where(take, cq, best[2])
-        need = first & (half | retry)
-        lp = jax.tree_util.tree_map(lambda a, b: jnp.where(half, a, b), reduced, wide)
-        start_y = jnp.where(half, 0.0, q_sol.y)
-        again = jnp.asarray([REDUCED_PIVOTS, 0], jnp.int32)
-        return k + 1, (lp, jnp.zeros(N + 1, dt), start_y), again, (xq, yq, cq, xt, yt, ct), half, need
-
-    best = (start[1], start[2], jnp.zeros((), bool), t_sol.x, t_sol.y, jnp.zeros((), bool))
-    carry = (jnp.zeros((), jnp.int32), start, budget, best, jnp.zeros((), bool), jnp.ones((), bool))
-    _, _, _, (xq, yq, cq, xt, yt, ct), _, _ = jax.lax.while_loop(lambda c: c[-1], body, carry)
-    return [as_solution(q_lp, q_sol, xq[:N], yq, cq), as_solution(t_lp, t_sol, xt, yt, ct)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -432,7 +115,7 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None, force
     ``BOUNDED``, ``delta`` is that bound, ``Q = 0`` exactly. (Seen in float32: an ill-posed LP
     accepted at ``delta = 4e-4`` whose ``delta*`` is -1.) ``polished``: :func:`polish`'s result
     where the caller already has it. ``forced``: where ``delta* = -1`` is known
-    (:func:`_open_half_space`), the value is that, ``OPTIMAL``, whatever the solve found.
+    (:func:`open_half_space`), the value is that, ``OPTIMAL``, whatever the solve found.
     """
     tol = tolerances(q_lp.A.dtype)
     full = _full_budget(q_lp, iterations)
@@ -453,7 +136,7 @@ def _quality_value(q_lp: LP, q_sol: LPSolution, iterations, polished=None, force
     if tol.crossover:
         # A certified vertex of an ill-posed LP (a grasp whose torques lie in a half-space, whose
         # torque LP the short pass did not solve: ``quality``) waits for the full budget, where
-        # ``_polish_exact`` reduces the LP.
+        # ``polish_exact`` reduces the LP.
         ill_posed = sensitivity(q_lp.A, jax.lax.stop_gradient(q_sol.x), jax.lax.stop_gradient(q_sol.y)) > SENSITIVE
         suspect = q_ok & (~certified | (ill_posed & ~full)) & (delta > -tol.margin)
     else:
@@ -497,11 +180,11 @@ def _torque_test(tau: jax.Array, t_sol: LPSolution, t_full, opposed) -> Torques:
     ``t_full``: whether it had the full budget; ``opposed``: what proves ``l* < 0`` (the caller
     knows how precise its ``l*`` is)."""
     tol = tolerances(tau.dtype)
-    full, null = _gram_rank3(tau)
-    t_margin = _min_weight_margin(tau, t_sol)
+    full, null = gram_rank3(tau)
+    t_margin = min_weight_margin_of(tau, t_sol)
     # Unfinished after the full budget: the dual of the best iterate may still prove that the
     # torques do not span, by a direction u with u . tau >= 0 for every torque (then l* <= 0).
-    t_dual = _min_weight_certificate(tau, t_sol)
+    t_dual = min_weight_certificate(tau, t_sol)
     u = safe_normalize(t_dual)
     u_slack = 16.0 * jnp.finfo(tau.dtype).eps * jnp.max(jnp.abs(tau))
     t_bounded = t_full & (t_sol.status == Status.NOT_CONVERGED) & (jnp.min(tau @ u) >= -u_slack)
@@ -528,7 +211,7 @@ def _evaluation(points, tau_dim: int, delta, q_status, q_dual, iterations, torqu
     has_dual = q_ok | bounded
     t_q = q_dual[d : d + tau_dim]
     eq_cert = -jnp.concatenate([q_dual[:d], jnp.zeros(tau_dim, points.dtype)]) - _certificate_from_torque(
-        points, t_q / _arm_scale(points)
+        points, t_q / arm_scale(points)
     )
     cert = jnp.where(~torque_span, _certificate_from_torque(points, t_cert), eq_cert)
     cert = jnp.where(force_closure | ~has_dual, 0.0, safe_normalize(cert))
@@ -550,7 +233,7 @@ def _evaluation(points, tau_dim: int, delta, q_status, q_dual, iterations, torqu
 def staged(points: jax.Array, torque_test: str = "exact") -> bool:
     """Whether :func:`evaluate_one` of grasps like ``points`` runs as :func:`torque_stage` then
     :func:`quality_stage`: 3D, the exact torque test, float64 (float32's crossover polishes both
-    LPs together, ``_polish_exact``)."""
+    LPs together, ``polish_exact``)."""
     return points.shape[-1] == 3 and torque_test == "exact" and not tolerances(points.dtype).crossover
 
 
@@ -580,7 +263,7 @@ def torque_stage(points, normals, mu, num_edges: int, tangents=None, iterations=
     tau = _torque_columns(points, normals, mu, num_edges, tangents, contact, torsion)
     t_lp = min_weight_lp(tau)
     (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
-    margin = _min_weight_margin(tau, t_sol)
+    margin = min_weight_margin_of(tau, t_sol)
     opposed = (contact == "hard") & (t_sol.status == Status.OPTIMAL) & (margin < -tol.margin)
     torques = _torque_test(tau, t_sol, _full_budget(t_lp, iterations), opposed)
     rows = 3 + 3 + 1
@@ -634,7 +317,7 @@ def evaluate_one(
     q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
     tau = cols.torque[cols.fixed:]
     if d == 3 and torque_test == "exact":
-        # float32: both LPs, then one crossover for both (``_polish_exact``).
+        # float32: both LPs, then one crossover for both (``polish_exact``).
         t_lp = min_weight_lp(tau)
         # Two loops, not one fused loop: the torque LP's block converges sooner, and its loop
         # stops then. The quality LP is feasible by construction.
@@ -642,16 +325,16 @@ def evaluate_one(
         (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
         t_full = _full_budget(t_lp, iterations)
         q_full = _full_budget(q_lp, iterations)
-        q_polished, t_polished = _polish_exact(
+        q_polished, t_polished = polish_exact(
             q_lp, t_lp, q_sol, t_sol, (_pivots(tol, q_full), _pivots(tol, t_full)), q_full
         )
-        forced = _open_half_space(t_polished)
+        forced = open_half_space(t_polished)
         torque_span, t_margin, t_cert, t_status, _ = _torque_test(tau, t_polished[0], t_full, forced)
     else:
         (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
         q_polished, forced = None, False
         if d == 2:
-            torque_span, t_margin, t_cert = _exact_torque_2d(tau)
+            torque_span, t_margin, t_cert = exact_torque_2d(tau)
             if torque_test == "paper":
                 torque_span = paper_torque_test(tau)
         else:
@@ -710,7 +393,7 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     tol = tolerances(points.dtype)
     polished, forced = None, False
     if tol.crossover and points.shape[-1] == 3:
-        # float32: the half-space round of evaluate (``_polish_exact``) needs the torque LP's
+        # float32: the half-space round of evaluate (``polish_exact``) needs the torque LP's
         # vertex; the crossover finds it from nothing (no interior-point loop for it here), with
         # the full budget only.
         t_lp = min_weight_lp(cols.torque[cols.fixed:])
@@ -720,8 +403,8 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
                              jnp.asarray(Status.NOT_CONVERGED, jnp.int8), jnp.zeros((), jnp.int32), zero)
         full = _full_budget(lp, iterations)
         t_pivots = tol.crossover if full is True else jnp.where(full, tol.crossover, 0)
-        polished, t_polished = _polish_exact(lp, t_lp, sol, nothing, (_pivots(tol, full), t_pivots), full)
-        forced = _open_half_space(t_polished)
+        polished, t_polished = polish_exact(lp, t_lp, sol, nothing, (_pivots(tol, full), t_pivots), full)
+        forced = open_half_space(t_polished)
     delta, status, _ = _quality_value(lp, sol, iterations, polished, forced)
     ok = status == Status.OPTIMAL
     if signed:
@@ -766,7 +449,7 @@ def min_weight_value(vectors: jax.Array, iterations=None, best_effort: bool = Fa
         sol, _, _ = polish(lp, sol, pivots)
     if full is None:
         vectors_ = jax.lax.stop_gradient(vectors)
-        full = _gram_rank3(vectors_)[0] if vectors.shape[1] == 3 else full_rank(vectors_)
+        full = gram_rank3(vectors_)[0] if vectors.shape[1] == 3 else full_rank(vectors_)
     K = vectors.shape[0]
     value = 1.0 / K - optimal_value(lp, sol)
     margin = jnp.where(has_value(sol), value, jnp.where(sol.status == Status.INFEASIBLE, -jnp.inf, 0.0))

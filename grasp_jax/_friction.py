@@ -22,10 +22,11 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from ._closure import _gram_rank3, full_rank, min_weight_lp, min_weight_value
+from ._closure import min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
 from ._contact import columns_per_contact, wrench_columns
+from ._programs import full_rank, gram_rank3, min_weight_lp
 from ._status import StatusEnum
 from .lp import Status, warm_weight
 
@@ -107,8 +108,8 @@ def _wrenches(points, normals, mu, num_edges, contact, torsion, tangents):
 
 
 def _spans(*vectors) -> tuple[jax.Array, ...]:
-    """Whether each ``(K, D)`` set spans R^D (no LAPACK: ``_closure.full_rank``)."""
-    rank = (lambda v: _gram_rank3(v)[0]) if vectors[0].shape[1] == 3 else full_rank
+    """Whether each ``(K, D)`` set spans R^D (no LAPACK: ``_programs.full_rank``)."""
+    rank = (lambda v: gram_rank3(v)[0]) if vectors[0].shape[1] == 3 else full_rank
     return tuple(rank(jax.lax.stop_gradient(v)) for v in vectors)
 
 
@@ -184,6 +185,9 @@ def _search(points, normals, torsion, cap, steps=MAX_STEPS, start=None, *, num_e
     again from ``[0, cap]`` (a lower end that only an unfinished LP put there is dropped for the
     one before it). A resumed search solves no LP at ``cap`` (its upper end is in ``start``); the
     span is tested again (no LP).
+
+    One function for one loop: the bracket, the Newton and bisection steps and the warm starts
+    share the loop's carry, which the nested step functions read from the enclosing scope.
     """
     dt = points.dtype
     rtol = 0.5 * rtol_for(dt)  # mu* = hi is then within rtol / 2 + the LP's accuracy

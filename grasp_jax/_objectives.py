@@ -22,10 +22,11 @@ import jax.numpy as jnp
 
 from ._api import _bind, _check_common, check_contact
 from ._batch import map_grasps
-from ._closure import SHIFT, _exact_torque_2d, about_first, min_weight_value, quality_lp
+from ._closure import exact_torque_2d, min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
 from ._contact import wrench_columns
+from ._programs import SHIFT, about_first, quality_lp
 from ._validate import check_scalar
 from ._wrench import cross
 from .lp import Status, has_value, optimal_value, solve
@@ -53,7 +54,7 @@ def signed_quality(cols, edges, iterations=None, best_effort: bool = False) -> j
     """``delta*`` of the always-feasible quality LP (``Q`` where positive), envelope derivatives.
 
     Args:
-        cols: the grasp's wrench columns about ``c_1`` (``_closure.about_first``); edges:
+        cols: the grasp's wrench columns about ``c_1`` (``_programs.about_first``); edges:
             ``(n, m, d)`` cone edges (:func:`cone_edges`).
         iterations, best_effort: as :func:`grasp_jax.lp.solve`."""
     lp = quality_lp(cols, edges)
@@ -67,7 +68,7 @@ def torque_margin(cols, iterations=None, best_effort: bool = False) -> jax.Array
     :func:`signed_quality`."""
     tau = cols.torque[cols.fixed:]
     if tau.shape[-1] == 1:
-        return _exact_torque_2d(tau)[1]
+        return exact_torque_2d(tau)[1]
     margin, status = min_weight_value(tau, iterations, best_effort)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
 

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import _robust
+from . import _noise
 from . import surfaces as _surfaces
 from ._api import _bind, _lp_columns, check_contact, evaluate
 from ._batch import map_grasps
@@ -64,7 +64,7 @@ DISTINCT_TOL = 0.01
 
 _CLOSURE_KINDS = ("closure", "closure_any")
 #: ``objective=ROBUST`` (with ``noise=``): the mean ``"closure"`` objective over fixed
-#: perturbations (:func:`grasp_jax._robust.robust_value`).
+#: perturbations (:func:`grasp_jax._noise.robust_value`).
 ROBUST = "robust"
 
 
@@ -202,7 +202,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     ``(contacts, optimizer state, travel, best contacts, best objective, best Q)`` (built in
     :func:`_run`; ``travel: (n, d)`` is the sum of the updates so far, the ``params`` the optimizer
     sees), then ``shared = (surface, (mu, torsion), offset, robust)`` (``robust``: the fixed
-    perturbations of ``objective="robust"``, :class:`grasp_jax._robust.Reparameterized`, else
+    perturbations of ``objective="robust"``, :class:`grasp_jax._noise.Reparameterized`, else
     ``None``; ``noise_flags``: their static structure).
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
@@ -220,7 +220,7 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
                 return objective_one(points, normals, mu_per_contact, num_edges, "closure", surface.center,
                                      surface.scale, iterations, best_effort=True, contact=contact, torsion=torsion)[0]
 
-            mean, _ = _robust.robust_value(surface, contacts, v, mu, robust, closure, flags=noise_flags)
+            mean, _ = _noise.robust_value(surface, contacts, v, mu, robust, closure, flags=noise_flags)
             return mean, {}
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
         return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
@@ -331,7 +331,7 @@ def optimize(
     contact: str = "hard",
     torsion=None,
     noise=None,
-    robust_samples: int = _robust.OPTIMIZE_SAMPLES,
+    robust_samples: int = _noise.OPTIMIZE_SAMPLES,
 ) -> OptimizeResult:
     """Move the contacts of many grasps over an object's surface to maximize an objective.
 
@@ -402,25 +402,12 @@ def optimize(
     contact, torsion = check_contact(contact, torsion, surface.dim)
     if iterations is not None:
         iterations = check_int("iterations", iterations)
+    robust_samples = _check_objective(objective, noise, robust_samples)
     if learning_rate is None:
         learning_rate = DEFAULT_LEARNING_RATE if init is None else REFINE_LEARNING_RATE
     learning_rate = check_scalar("learning_rate", learning_rate)
-    if objective not in OBJECTIVES + (ROBUST,):
-        raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES + (ROBUST,)))}; got {objective!r}")
-    if (objective == ROBUST) != (noise is not None):
-        raise ValueError("objective='robust' needs noise=grasp_jax.Noise(...), and noise is only used by it")
-    if noise is not None:
-        if not isinstance(noise, _robust.Noise):
-            raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
-        robust_samples = check_int("robust_samples", robust_samples)
     user_optimizer = optimizer is not None
-    if optimizer is None:
-        optimizer = default_optimizer(steps, learning_rate, restart=init is None)
-    elif not isinstance(optimizer, optax.GradientTransformation):
-        raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
-                        f"got {type(optimizer).__name__}")
-    else:
-        _check_optimizer(optimizer, (fingers, surface.dim))
+    optimizer = _pick_optimizer(optimizer, steps, learning_rate, init is None, (fingers, surface.dim))
     dtype = _check_dtype(dtype)
     init_points = None if init is None else _check_init(init, fingers, surface.dim)
     if init_points is None:
@@ -432,20 +419,13 @@ def optimize(
     with scope:
         # On the device once, not copied with every segment's call (methods cast to the contacts' dtype).
         surface = jax.device_put(surface)
-        if init_points is None:
-            contacts = surface.sample(key, starts * fingers)
-            contacts = jax.tree_util.tree_map(lambda a: a.reshape((starts, fingers) + a.shape[1:]), contacts)
-        else:
-            contacts = surface.locate(init_points)
-        contacts = jax.tree_util.tree_map(
-            lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
-        )
+        contacts = _initial_contacts(surface, key, starts, fingers, init_points, dtype)
         initial_points = np.asarray(jax.vmap(jax.vmap(surface.embed))(contacts)[0])
         robust = None
         if noise is not None:
             draw_key = jax.random.fold_in(key if init_points is None else check_key(key, "gj.optimize"), 24)
-            robust = (_robust.reparameterized(noise, draw_key, robust_samples, fingers, surface.dim,
-                                              float(surface.scale), dtype), noise._flags())
+            robust = (_noise.reparameterized(noise, draw_key, robust_samples, fingers, surface.dim,
+                                             float(surface.scale), dtype), noise._flags())
         result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
                       contact, torsion, robust)
         points, normals_out, best_value, history, qualities, path = result
@@ -458,6 +438,42 @@ def optimize(
         objective_name=objective, normal_kind=surface.normal_kind, steps=steps,
         seconds=time.perf_counter() - t0, scale=float(surface.scale),
         learning_rate=None if user_optimizer else float(learning_rate),
+    )
+
+
+def _check_objective(objective: str, noise, robust_samples) -> int:
+    """The objective's name and its noise checked; the robust objective's sample count."""
+    if objective not in OBJECTIVES + (ROBUST,):
+        raise ValueError(f"objective must be one of {', '.join(map(repr, OBJECTIVES + (ROBUST,)))}; got {objective!r}")
+    if (objective == ROBUST) != (noise is not None):
+        raise ValueError("objective='robust' needs noise=grasp_jax.Noise(...), and noise is only used by it")
+    if noise is None:
+        return robust_samples
+    if not isinstance(noise, _noise.Noise):
+        raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
+    return check_int("robust_samples", robust_samples)
+
+
+def _pick_optimizer(optimizer, steps: int, learning_rate: float, random_starts: bool, shape: tuple):
+    """The user's optax transformation (checked), else :func:`default_optimizer`."""
+    if optimizer is None:
+        return default_optimizer(steps, learning_rate, restart=random_starts)
+    if not isinstance(optimizer, optax.GradientTransformation):
+        raise TypeError(f"optimizer must be an optax.GradientTransformation (for example optax.adam(0.02)); "
+                        f"got {type(optimizer).__name__}")
+    _check_optimizer(optimizer, shape)
+    return optimizer
+
+
+def _initial_contacts(surface, key, starts: int, fingers: int, init_points, dtype):
+    """``(starts, fingers)`` contacts: random on the surface, or the closest to ``init_points``."""
+    if init_points is None:
+        contacts = surface.sample(key, starts * fingers)
+        contacts = jax.tree_util.tree_map(lambda a: a.reshape((starts, fingers) + a.shape[1:]), contacts)
+    else:
+        contacts = surface.locate(init_points)
+    return jax.tree_util.tree_map(
+        lambda a: jnp.asarray(a, dtype) if jnp.issubdtype(a.dtype, jnp.floating) else jnp.asarray(a), contacts
     )
 
 

@@ -83,7 +83,7 @@ def sample_cylinder(count, rng, radius=0.5, height=1.5):
 def sample_cylinder_side(count, rng, radius=0.5, height=1.5):
     """Points on the side of the cylinder only (no caps). A grasp of them has horizontal normals,
     so the torques of its cone edges about ``c_1`` lie in a half-space: the degenerate quality LP
-    of ``_closure._half_space_quality_lp``."""
+    of ``_polish.half_space_quality_lp``."""
     theta = rng.uniform(0, 2 * np.pi, size=count)
     z = rng.uniform(-0.97, 0.97, size=count) * height / 2
     normals = np.stack([np.cos(theta), np.sin(theta), np.zeros(count)], axis=1)

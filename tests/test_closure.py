@@ -425,17 +425,17 @@ def test_wandering_iterates_end_at_the_best_one():
 
 @jit
 def _quality_bounds(p, n, noise):
-    from grasp_jax import _closure
+    from grasp_jax import _programs
     from grasp_jax import lp as _lp
     from grasp_jax._cones import cone_edges, safe_normalize
 
     def one(p, n, e):
         edges = cone_edges(safe_normalize(n), MU, 8, None)
-        lp = _closure.quality_lp(_closure.about_first(p, safe_normalize(n), edges), edges)
+        lp = _programs.quality_lp(_programs.about_first(p, safe_normalize(n), edges), edges)
         (sol,) = _lp.solve(lp, consistent=True)
-        tight, _ = _closure.quality_bound(lp, sol.y)
-        loose, slack = _closure.quality_bound(lp, sol.y + e)
-        return -sol.value - _closure.SHIFT, sol.status, tight, loose, slack
+        tight, _ = _programs.quality_bound(lp, sol.y)
+        loose, slack = _programs.quality_bound(lp, sol.y + e)
+        return -sol.value - _programs.SHIFT, sol.status, tight, loose, slack
 
     return jax.vmap(one)(p, n, noise)
 
@@ -460,7 +460,7 @@ def test_full_rank_agrees_with_lapack():
     against NumPy's ``eigvalsh``: sets of every rank, and sets whose least eigenvalue is just
     either side of the threshold (1% in float64, 20% in float32, well above the rounding of a
     float32 Gram matrix), in float64 and float32."""
-    from grasp_jax._closure import full_rank
+    from grasp_jax._programs import full_rank
     from grasp_jax._constants import tolerances
 
     rng = np.random.default_rng(7)

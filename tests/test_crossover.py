@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from grasp_jax._closure import SHIFT, about_first, quality_lp
+from grasp_jax._programs import SHIFT, about_first, quality_lp
 from grasp_jax._cones import cone_edges
 from grasp_jax.lp._crossover import FEASIBILITY, _inverse, crossover, polish
 from grasp_jax.lp import LP, LPSolution, Status, solve

@@ -163,7 +163,7 @@ def test_two_devices_finish_and_match_one(layouts):
 
 
 def test_no_program_is_kept_to_one_device(layouts):
-    """No program calls LAPACK (the 3D min-weight program's rank test, ``_closure.full_rank``, has
+    """No program calls LAPACK (the 3D min-weight program's rank test, ``_programs.full_rank``, has
     no eigensolver): on two devices every program, ``min_weight``'s included, is sharded over both
     (the guard of ``_batch`` is still tested below)."""
     (one, _), (two, _) = layouts[1], layouts[2]

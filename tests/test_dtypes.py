@@ -231,7 +231,7 @@ def test_float32_targets(float32_vs_float64, name):
 
 # Two grasps whose torques about c_1 lie in a half-space (torque margin ~1e-11 in float64): the
 # quality LP is degenerate, and its float32 vertex was not certified (Q32 0.457 and 0.808 before
-# ``_closure._half_space_quality_lp``). A box (two contacts on the top face) and a cylinder (all
+# ``_closure.half_space_quality_lp``). A box (two contacts on the top face) and a cylinder (all
 # contacts on the side).
 HALF_SPACE_GRASPS = [
     ([[-1.0, 0.09364209, 0.08946599], [1.0, 0.00793534, -0.30250073],

@@ -272,10 +272,10 @@ def test_robust_objective_scores_the_perturbed_contacts_of_robust():
 
     with jax.enable_x64(True):
         contacts = surface.locate(p[0])
-        draws = _robust.reparameterized(noise, key, K, N, 3, float(surface.scale), np.float64)
+        draws = _noise.reparameterized(noise, key, K, N, 3, float(surface.scale), np.float64)
 
         def mean(v):
-            return _robust.robust_value(surface, contacts, v, MU, draws, objective, flags=noise._flags())
+            return _noise.robust_value(surface, contacts, v, MU, draws, objective, flags=noise._flags())
 
         (_, values), grad = jax.value_and_grad(mean, has_aux=True)(jnp.zeros((N, 3)))
         expected = [objective(pp[0, k], nn[0, k], mm[0, k]) for k in range(K)]

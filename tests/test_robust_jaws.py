@@ -17,7 +17,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import grasp_jax as gj
-from grasp_jax import _robust, grippers, storage
+from grasp_jax import _noise, grippers, storage
 from grasp_jax.grippers import JawStatus, ParallelJaw
 
 MU = 0.5
@@ -74,7 +74,7 @@ def test_zero_noise_is_the_nominal_jaw_verdict(sphere_grasps):
 
 def _along_axis(monkeypatch):
     """The draws of every key with translations along x only (a pure shift along a closing axis x)."""
-    real = _robust.draws
+    real = _noise.draws
 
     def along(*args, **kwargs):
         d = real(*args, **kwargs)
@@ -82,7 +82,7 @@ def _along_axis(monkeypatch):
         t[:, 1:] = 0.0
         return d._replace(translation=t)
 
-    monkeypatch.setattr(_robust, "draws", along)
+    monkeypatch.setattr(_noise, "draws", along)
 
 
 @pytest.mark.parametrize("mesh", [SPHERE, BOX], ids=["sphere", "box"])
@@ -105,7 +105,7 @@ def test_a_shift_along_the_closing_axis_is_recast(monkeypatch, mesh):
     # where the surface meets each line (s along the axis from the centre), and where it is after a
     # shift d of the object along x: both jaws (at -/+ width / 2) must start outside it
     s = np.einsum("gki,gi->gk", jc.points - centers[:, None], axes)
-    d = sigma * radius * _robust.draws(key, 32, 2, 3).translation[:, 0]
+    d = sigma * radius * _noise.draws(key, 32, 2, 3).translation[:, 0]
     along = d[None] * axes[:, :1]  # (grasps, samples)
     outside = (s[:, :1] + along > -width / 2) & (s[:, 1:] + along < width / 2)
     assert (0.5 < outside.mean(axis=1)).all() and (outside.mean(axis=1) < 1).all()  # both kinds of draws
@@ -144,7 +144,7 @@ def test_equals_a_brute_force_loop_over_the_same_draws():
     res = grippers.robust_jaws(BOX, centers, axes, widths, mu=MU, noise=noise, key=key, samples=samples,
                                gripper=GRIPPER, margin=False, **SOFT)
     radius = float(np.linalg.norm(BOX.vertices, axis=1).max())  # the box's centre is 0
-    draw = _robust.draws(key, samples, 2, 3)
+    draw = _noise.draws(key, samples, 2, 3)
     x, y = grippers._antipodal._frame(axes)
     fc = np.zeros((len(centers), samples), bool)
     q = np.zeros((len(centers), samples))

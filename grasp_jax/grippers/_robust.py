@@ -11,14 +11,22 @@ mesh (:func:`jaw_contacts`) and scores the contacts through the scoring path of
 * ``normal``, ``friction``: as :func:`grasp_jax.robust` draws them per contact slot (jaw 0, jaw 1).
 
 A perturbation whose jaws do not close on two contacts (any :class:`JawStatus` but ``OK``) counts
-as not force-closure, Q 0, margin 0. The draws are :func:`grasp_jax._robust.draws` for ``n = 2``
+as not force-closure, Q 0, margin 0. The draws are :func:`grasp_jax._noise.draws` for ``n = 2``
 contacts in 3D, the same for every grasp and those :func:`grasp_jax.robust` gives the same key.
 """
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from .. import _noise, _robust
+from .._api import _check_common, check_contact
+from .._batch import pad_rows
+from .._validate import check_key, check_scalar, is_traced
+from ..objects._mesh import center_radius
+from ._antipodal import _frame
 from ._contacts import as_trimesh, check_poses, jaw_contacts
 from ._gripper import JawStatus, ParallelJaw
 
@@ -30,24 +38,19 @@ def _center_radius(mesh, tm) -> tuple[np.ndarray, float]:
     center, radius = getattr(mesh, "center", None), getattr(mesh, "radius", None)
     if center is not None and radius is not None and not hasattr(mesh, "faces"):
         return np.asarray(center, float).reshape(3), float(radius)
-    from ..objects._mesh import center_radius
 
     return center_radius(tm, tm.is_volume)
 
 
 class _JawPerturber:
     """The perturbations of one :func:`robust_jaws` call, in the protocol of
-    ``grasp_jax._robust._label``: slices of grasps re-cast under noise, with an ``ok`` mask."""
+    ``grasp_jax._robust.label``: slices of grasps re-cast under noise, with an ``ok`` mask."""
 
     def __init__(self, mesh, centers, axes, widths, approaches, mu, noise, key, samples, gripper, collision,
                  num_edges, torsion):
-        import jax
 
-        from .. import _robust
-        from .._api import _check_common
-        from .._validate import check_key, is_traced
 
-        if not isinstance(noise, _robust.Noise):
+        if not isinstance(noise, _noise.Noise):
             raise TypeError(f"noise must be a grasp_jax.Noise; got {type(noise).__name__}")
         key = check_key(key, "robust_jaws")
         self.tm = as_trimesh(mesh)
@@ -68,7 +71,7 @@ class _JawPerturber:
         self.dtype = points.dtype
         self.total = len(points)
         self.per = max(1, _robust.ROWS // samples)
-        self.draw = _robust.draws(key, samples, 2, 3, np.float64)
+        self.draw = _noise.draws(key, samples, 2, 3, np.float64)
         self.sigmas = np.array([0.0, noise.normal, noise.friction[0], noise.friction[1], noise.friction_sigma,
                                 0.0, 0.0], np.float64)
         # the hand's steps (S, 2: coordinates in each axis's tangent frame) and the object's poses
@@ -76,10 +79,9 @@ class _JawPerturber:
         self.pose = noise.rotation > 0 or noise.translation > 0
         self.rotations = self.shift = None
         if self.pose:
-            import jax.numpy as jnp
 
             with jax.enable_x64(True):
-                self.rotations = np.asarray(jax.vmap(_robust._rotation)(
+                self.rotations = np.asarray(jax.vmap(_noise.rotation)(
                     jnp.asarray(noise.rotation * self.draw.rotation, jnp.float64)))  # (S, 3, 3)
             self.shift = noise.translation * self.scale * self.draw.translation  # (S, 3)
 
@@ -93,7 +95,6 @@ class _JawPerturber:
     def poses(self, start: int, stop: int):
         """The perturbed poses of grasps ``start..stop`` in the object's frame: ``(g, S, 3)``
         centres, axes and approaches (``None`` without them)."""
-        from ._antipodal import _frame
 
         c, u = self.centers[start:stop], self.axes[start:stop]
         a = None if self.approaches is None else self.approaches[start:stop]
@@ -113,10 +114,7 @@ class _JawPerturber:
     def slice(self, start: int, stop: int):
         """``(points (g, S, 2, 3), normals (g, S, 2, 3), mu (g, S, 2), ok (g, S))`` of grasps
         ``start..stop``. Call inside ``self.scope``."""
-        import jax.numpy as jnp
 
-        from .. import _robust
-        from .._batch import pad_rows
 
         g, S = stop - start, self.samples
         if self.noise.moves_contacts:
@@ -138,7 +136,7 @@ class _JawPerturber:
         pieces = []
         for lo in range(0, g, self.per):
             hi = min(lo + self.per, g)
-            out = _robust._perturb_moved(pad_rows(points[lo:hi], self.per), pad_rows(normals[lo:hi], self.per),
+            out = _noise.perturb_moved(pad_rows(points[lo:hi], self.per), pad_rows(normals[lo:hi], self.per),
                                          self.draw, self.sigmas, jnp.asarray(self.mu, self.dtype),
                                          flags=self.noise._flags())
             pieces.append(tuple(np.asarray(a)[:hi - lo] for a in out))
@@ -215,16 +213,13 @@ def robust_jaws(
             contact model or key, or a negative sigma (:class:`grasp_jax.Noise`).
         TypeError: ``noise`` that is not a :class:`grasp_jax.Noise`.
     """
-    from .. import _robust
-    from .._api import check_contact
-    from .._validate import check_scalar
 
     samples, quantile = _robust.check_labels(samples, quantile, torque_test)
     contact, torsion = check_contact(contact, torsion, 3)
     perturber = _JawPerturber(mesh, centers, axes, widths, approaches, mu, noise, key, samples, gripper, collision,
                               num_edges, torsion)
     torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
-    result, stuck = _robust._label(perturber, quantile=quantile, torque_test=torque_test, contact=contact,
+    result, stuck = _robust.label(perturber, quantile=quantile, torque_test=torque_test, contact=contact,
                                    torsion=torsion, margin=margin, torque_scale=torque_scale, progress=progress)
     _robust.warn_unconverged(result, stuck, "robust_jaws")
     return result

@@ -175,6 +175,9 @@ def crossover(A: jax.Array, b: jax.Array, c: jax.Array, x: jax.Array, y: jax.Arr
         ``(x, y, certified)``: the vertex ``(N,)`` (negative rounding clipped to 0), its dual
         ``(r,)``, and whether it is certified optimal (then ``x`` and ``y`` are exact up to the
         rounding of one ``r x r`` solve). Where not certified, ``x`` and ``y`` are not meaningful.
+
+    One function of the module docstring's four steps: they share the basis, its inverse and the
+    pivot loop's state, which a split would pass through six-tuple returns.
     """
     r, N = A.shape
     dt = A.dtype
