@@ -185,10 +185,21 @@ def figure(path, per_object, pooled, base):
     axes[1].set_xlabel("held rate among the top 10% (dotted: base rates)")
     axes[0].set_yticks(y, [title for _, title, _ in LABELS])
     axes[0].invert_yaxis()
-    axes[1].legend(fontsize=7, loc="lower right")
+    handles, names_ = axes[1].get_legend_handles_labels()
+    fig.legend(handles, names_, fontsize=8, loc="lower center", ncol=len(names))
     fig.suptitle("Analytic labels of antipodal jaw grasps against the MuJoCo check (grasp_jax.sim)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path)
+
+
+def replot(out: Path) -> None:
+    """The figure again from ``out/results.json``."""
+    import json
+
+    data = json.loads((out / "results.json").read_text())
+    res = {name: {k: (v["auc"], v["top10"]) for k, v in labels.items()} for name, labels in data["auc_top10"].items()}
+    pooled = res.pop("pooled")
+    figure(out / "labels_vs_physics.png", res, pooled, data["base_rate"])
 
 
 def main(argv=None):
@@ -208,7 +219,10 @@ def main(argv=None):
     ap.add_argument("--jaw-force", type=float, default=None, help="Protocol.jaw_force (default: the Protocol's)")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--progress", action="store_true")
+    ap.add_argument("--replot", action="store_true", help="only draw the figure again from results.json")
     args = ap.parse_args(argv)
+    if args.replot:
+        return replot(args.out)
     use_cpu_cores()
 
     import warnings
