@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import grasp_jax as gj
-from grasp_jax import objects, surfaces
+from grasp_jax import _noise, objects, surfaces
 
 from _grasps import MU
 
