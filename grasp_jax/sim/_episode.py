@@ -95,17 +95,25 @@ def _angle(q: np.ndarray, ref: np.ndarray) -> float:
     return float(2.0 * np.arccos(min(1.0, abs(float(q @ ref)))))
 
 
+def _resting(qvel: np.ndarray, protocol: Protocol) -> bool:
+    """Whether the object's speed (m/s) and spin (rad/s) are both under ``settle_speed``."""
+    v, w = qvel[:3], qvel[3:]
+    return bool(v @ v < protocol.settle_speed**2 and w @ w < protocol.settle_speed**2)
+
+
 def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None = None,
          frame: np.ndarray | None = None):
     """The six force tests from the state saved in ``scene.state``: ``(held (6,) bool,
     displacement (6,), rotation (6,), diverged bool)``, the object's motion measured from
     ``reference`` (centre of mass, quaternion; default: its pose in the saved state), the forces
     along the columns of ``frame`` (3, 3) (default: the world's axes). A direction stops at the
-    first check (every :data:`STRIDE` steps) that finds the object out of the tolerance."""
+    first check (every :data:`STRIDE` steps) that finds the object out of the tolerance, and holds
+    at the first check after ``Protocol.settle_time`` that finds it at rest (``settle_speed``)."""
     mj, m, d = scene.mj, scene.model, scene.data
     held = np.zeros(6, bool)
     disp, rot = np.zeros(6), np.zeros(6)
     steps = protocol.steps(protocol.hold_time)
+    settle = protocol.steps(protocol.settle_time) if protocol.settle_speed > 0 else steps + 1
     directions = DIRECTION_VECTORS if frame is None else DIRECTION_VECTORS @ np.asarray(frame).T
     for k, direction in enumerate(directions):
         mj.mj_setState(m, d, scene.state, scene.state_spec)
@@ -123,6 +131,8 @@ def hold(scene: Scene, protocol: Protocol, force: float, reference: tuple | None
             disp[k], rot[k] = max(disp[k], dx), max(rot[k], da)
             if dx >= protocol.max_displacement or da >= protocol.max_rotation or not np.isfinite(dx):
                 ok = False
+                break
+            if done >= settle and _resting(d.qvel[scene.obj_dof:scene.obj_dof + 6], protocol):
                 break
         d.xfrc_applied[scene.obj] = 0.0
         if scene.diverged():

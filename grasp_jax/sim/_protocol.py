@@ -23,6 +23,8 @@ from ._object import MASS, Decomposition
 DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")
 #: The unit vectors of :data:`DIRECTIONS`, ``(6, 3)``.
 DIRECTION_VECTORS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+#: The fields of :class:`Protocol` that may be 0.
+_MAY_BE_ZERO = ("torsion", "pose_noise", "penetration", "squeeze", "settle_speed")
 #: Standard gravity, m/s^2 (the default force is the object's weight).
 GRAVITY = 9.81
 
@@ -46,6 +48,11 @@ class Protocol:
         close_time: time for the jaws (or joints) to move from the pre-grasp to the grasp target.
         squeeze_time: time the squeeze is held before the forces (the object settles).
         hold_time: time each external force is applied.
+        settle_time, settle_speed: a direction holds early when, ``settle_time`` or more after the
+            force came on, the object moves slower than ``settle_speed`` (m/s, and rad/s for its
+            spin): under a constant force it is then in equilibrium (at that speed it would not
+            leave the tolerance within ``hold_time``); ``settle_speed = 0``: always the whole
+            ``hold_time``.
         max_displacement: a direction fails once the centre of mass moves this far.
         max_rotation: a direction fails once the object turns this much (15 degrees).
         reference: where motion is measured from: ``"start"``, the object's pose before the gripper
@@ -79,6 +86,8 @@ class Protocol:
     close_time: float = 0.2
     squeeze_time: float = 0.1
     hold_time: float = 0.2
+    settle_time: float = 0.04
+    settle_speed: float = 0.001
     max_displacement: float = 0.02
     max_rotation: float = math.radians(15.0)
     reference: str = "start"
@@ -103,7 +112,7 @@ class Protocol:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"Protocol.{f.name} must be a finite number; got {value!r}")
-            if value < 0 or (value == 0 and f.name not in ("torsion", "pose_noise", "penetration", "squeeze")):
+            if value < 0 or (value == 0 and f.name not in _MAY_BE_ZERO):
                 raise ValueError(f"Protocol.{f.name} must be > 0; got {value!r}")
         if self.reference not in ("start", "squeeze"):
             raise ValueError(f"Protocol.reference must be 'start' or 'squeeze'; got {self.reference!r}")
