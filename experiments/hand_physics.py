@@ -6,7 +6,7 @@ valid grasp (force-closure, penetration <= 1 mm, contacts within 2 mm) is simula
 ``sim.simulate_hand`` (default ``Protocol``: the hand's joints under position control, gain
 ``hand_kp``, pre-grasp -> grasp -> squeeze, then the six forces). Reported: valid grasps, the held
 rate among them (BODex's benchmark: above 75%), the statuses, the held rate per direction, and the
-AUC of Q for held among the valid ones. Writes ``results.md`` and ``results.json``.
+AUC of Q for held among the valid ones; the invalid grasps are simulated too, for contrast. Writes ``results.md`` and ``results.json``.
 
     python experiments/hand_physics.py [--starts 64] [--steps 100] [--hands allegro leap]
 """
@@ -63,10 +63,13 @@ def main(argv=None):
             valid = np.flatnonzero(np.asarray(result.valid, bool))
             rec = {"hand": hand_name, "object": obj_name, "starts": args.starts, "valid": len(valid),
                    "synthesize_s": synth_s}
+            t = time.perf_counter()
+            every = sim.simulate_hand(hand, obj, result, protocol=protocol, seed=args.seed, workers=args.workers)
+            invalid = np.setdiff1d(np.arange(args.starts), valid)
+            rec.update(invalid_held_rate=float(every.success[invalid].mean()) if len(invalid) else float("nan"),
+                       invalid_penetration=int(np.sum(every.status[invalid] == sim.SimStatus.PENETRATION)))
             if len(valid):
-                t = time.perf_counter()
-                res = sim.simulate_hand(hand, obj, result, rows=valid, protocol=protocol, seed=args.seed,
-                                        workers=args.workers)
+                res = sim.SimResult(*(a[valid] for a in every))
                 rec.update(held=int(res.success.sum()), held_rate=float(res.success.mean()),
                            status={s.name: int(np.sum(res.status == s)) for s in sim.SimStatus},
                            directions_held=res.directions.mean(axis=0).tolist(),
@@ -75,12 +78,14 @@ def main(argv=None):
             records.append(rec)
             print(rec, flush=True)
             rows.append([hand_name, obj_name, rec["valid"], rec.get("held", 0), rec.get("held_rate", float("nan")),
+                         rec["invalid_held_rate"],
                          rec.get("status", {}).get("NO_CONTACT", 0), rec.get("status", {}).get("PENETRATION", 0),
                          rec.get("q_auc", float("nan")), synth_s, rec.get("simulate_s", 0.0)])
         timer.lap(hand_name)
     valid = sum(r["valid"] for r in records)
     held = sum(r.get("held", 0) for r in records)
-    header = ["hand", "object", "valid", "held", "held rate", "no contact", "penetration", "AUC of Q",
+    header = ["hand", "object", "valid", "held", "held rate", "held rate of the invalid", "no contact",
+              "penetration", "AUC of Q",
               "synthesize s", "simulate s"]
     text = (f"# Synthesized hand grasps in MuJoCo\n\n{args.starts} starts x {args.steps} steps; "
             f"held {held} of {valid} valid grasps ({held / max(valid, 1):.1%}).\n\n" + table(header, rows)
