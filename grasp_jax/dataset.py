@@ -162,10 +162,10 @@ def versions() -> dict:
 
 def _write_json(path: Path, data: dict) -> None:
     """``data`` to ``path`` atomically (a temporary file renamed into place)."""
-    from .storage import _fsync_dir, write_atomically
+    from .storage import fsync_dir, write_atomically
 
     write_atomically(path, lambda f: f.write(json.dumps(data, indent=1, default=str) + "\n"), what="dataset file")
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def _read_json(path: Path) -> dict | None:
@@ -395,6 +395,30 @@ def build(
     from . import pipeline
 
     t0 = time.perf_counter()
+    fingers, critical = _grasp_settings(fingers=fingers, scheme=scheme, gripper=gripper, collision=collision,
+                                        critical=critical)
+    entries = list_objects(source)
+    shard = _check_shard(shard)
+    out = Path(out)
+    config = config_of(fingers=fingers, num=num, seed=seed, scheme=scheme, mu=mu, num_edges=num_edges,
+                       torque_test=torque_test, contact=contact, torsion=torsion, robust=robust, gripper=gripper,
+                       collision=collision, critical=critical)
+    if robust is not None and robust.obj is not None:
+        raise DatasetError("the robust labels of a dataset take each object in turn: leave RobustLabels.obj unset")
+    _start(out, config)
+    settings = dict(num=num, fingers=fingers, mu=mu, num_edges=num_edges, seed=seed, scheme=scheme,
+                    torque_test=torque_test, contact=contact, torsion=torsion, chunk=chunk, gripper=gripper,
+                    collision=collision, critical=critical)
+    summary = DatasetSummary(out, shard, [], [], {}, {}, 0.0)
+    _build_objects(entries[shard[0]::shard[1]], summary, config, progress,
+                   lambda entry: _build_one(entry, out, pipeline, robust=robust, **settings))
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _grasp_settings(*, fingers, scheme: str, gripper, collision: bool, critical) -> tuple[int | None, bool]:
+    """``(fingers, critical)`` of :func:`build`: 4 free contacts by default, 2 with a gripper (which
+    also turns the critical friction on by default)."""
     critical = gripper is not None if critical is None else bool(critical)
     fingers = 4 if fingers is None and gripper is None else fingers
     if gripper is not None:
@@ -404,20 +428,24 @@ def build(
         fingers = 2
     elif collision:
         raise DatasetError("collision checks the body of a gripper: give a gripper too")
-    entries = list_objects(source)
+    return fingers, critical
+
+
+def _check_shard(shard) -> tuple[int, int]:
+    """``shard``, else the SLURM array's, else ``(0, 1)``; checked."""
     shard = shard if shard is not None else shard_from_environment() or (0, 1)
     i, n = shard
     if not (isinstance(i, int) and isinstance(n, int) and 0 <= i < n):
         raise DatasetError(f"shard must be (i, N) with 0 <= i < N; got {shard!r}")
-    mine = entries[i::n]
-    out = Path(out)
-    config = config_of(fingers=fingers, num=num, seed=seed, scheme=scheme, mu=mu, num_edges=num_edges,
-                       torque_test=torque_test, contact=contact, torsion=torsion, robust=robust, gripper=gripper,
-                       collision=collision, critical=critical)
-    if robust is not None and robust.obj is not None:
-        raise DatasetError("the robust labels of a dataset take each object in turn: leave RobustLabels.obj unset")
-    _start(out, config)
-    summary = DatasetSummary(out, shard, [], [], {}, {}, 0.0)
+    return shard
+
+
+def _build_objects(mine: list, summary: DatasetSummary, config: dict, progress: bool, build_one) -> None:
+    """``build_one(entry) -> record`` for every object of ``mine`` not done yet, each record written
+    after its part (the object is then done) and into ``summary``; the manifest rewritten every
+    :data:`MANIFEST_EVERY` s and at the end."""
+    out = summary.out
+    i, n = summary.shard
     items = mine
     bar = None
     if progress:
@@ -434,9 +462,7 @@ def build(
                 summary.skipped.append(entry.name)
                 summary.rows[entry.name] = _read_json(out / RECORDS / f"{entry.name}.json")
                 continue
-            record = _build_one(entry, out, pipeline, num=num, fingers=fingers, mu=mu, num_edges=num_edges,
-                                seed=seed, scheme=scheme, torque_test=torque_test, contact=contact, torsion=torsion,
-                                robust=robust, chunk=chunk, gripper=gripper, collision=collision, critical=critical)
+            record = build_one(entry)
             _write_json(out / RECORDS / f"{entry.name}.json", record)  # after the part: the object is done
             summary.rows[entry.name] = record
             if record["status"] == "done":
@@ -450,8 +476,6 @@ def build(
         if bar is not None:
             bar.close()
         _write_manifest(out, config)
-    summary.seconds = time.perf_counter() - t0
-    return summary
 
 
 def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -> dict:

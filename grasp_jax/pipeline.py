@@ -18,182 +18,35 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import queue
-import threading
-import time
-import warnings
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import ClassVar, Iterable, Iterator, Mapping
 
 import numpy as np
 
 from . import devices as _devices
+from ._labels import RobustLabels
+from ._labels import recast_jaws as _recast_jaws  # noqa: F401 - the name this module had
+from ._labels import with_object as _with_object
+from ._stream import (  # noqa: F401 - the names this module had
+    CRITICAL_FIELDS,
+    EPSILON_ZERO,
+    MIN_ROWS,
+    Scoring,
+    _evaluate_chunk,
+    _mask_failed_jaws,
+    _pad,
+    _Prefetch,
+    _slice_chunks,
+)
+from ._stream import CRITICAL_RANGE as _CRITICAL_RANGE
+from ._stream import score as _score
 from .devices import part_path, slice_bounds
-from .summary import DEFAULT_TOP, PERCENTILES, PipelineSummary, _QualityHistogram, _TopK
+from .summary import DEFAULT_TOP, PipelineSummary
 
 #: The paper's friction coefficient, tan(20 deg).
 DEFAULT_MU = 0.364
 #: Grasps per pipeline chunk: sampled, scored and written together.
 DEFAULT_CHUNK = 65536
-#: Fewest grasps per device in one compiled call (four blocks of ``grasp_jax._batch.BLOCK``).
-MIN_ROWS = 1024
-#: Ferrari-Canny epsilon (scale free: torques are divided by the torque scale) at or below which
-#: the summary counts a grasp as not force-closure by the baseline; qhull leaves round-off of about
-#: 1e-17 on grasps exactly on the boundary (contacts on parallel faces).
-EPSILON_ZERO = 1e-9
-
-
-# ---------------------------------------------------------------------------------------------
-# Robust labels
-
-
-@dataclasses.dataclass(frozen=True)
-class RobustLabels:
-    """Robust labels written beside the nominal scores (``grasp-jax sample / score --robust N``):
-    :func:`grasp_jax.robust` of every chunk, with the same draws for every chunk (one key), so the
-    labels do not depend on the chunk size. Parallel-jaw grasps (chunks with jaw poses) under noise
-    that moves contacts are labelled by :func:`grasp_jax.grippers.robust_jaws` instead: the closing
-    line cast again at every perturbed pose (the metadata's ``robust`` says ``"jaws": "recast"``).
-
-    Attributes:
-        noise: a :class:`grasp_jax.Noise`.
-        samples: perturbations per grasp (>= 2).
-        seed: the key's seed (``jax.random.key(seed)``).
-        quantile: of ``q_low`` and ``margin_low``.
-        margin: also the min-weight margin columns.
-        obj: the object, where the noise moves contacts.
-    """
-
-    noise: object
-    samples: int = 100
-    seed: int = 0
-    quantile: float = 0.1
-    margin: bool = True
-    obj: object = None
-
-    #: RobustResult field -> result file column.
-    COLUMNS: ClassVar[dict] = {"p_fc": "p_fc", "p_fc_se": "p_fc_se", "q_mean": "q_mean", "q_mean_se": "q_mean_se",
-               "q_low": "q_low", "margin_mean": "margin_mean", "margin_mean_se": "margin_mean_se",
-               "margin_low": "margin_low", "unconverged": "robust_unconverged"}
-
-    def fields(self) -> tuple[str, ...]:
-        """The result file columns this adds."""
-        return tuple(c for f, c in self.COLUMNS.items() if self.margin or not f.startswith("margin"))
-
-    def to_dict(self) -> dict:
-        """The settings, for a result file's metadata (``robust``)."""
-        return {"samples": int(self.samples), "seed": int(self.seed), "quantile": float(self.quantile),
-                "margin": bool(self.margin), "noise": dataclasses.asdict(self.noise)}
-
-    def columns(self, points, normals, *, mu, num_edges, torque_test, contact, torsion) -> dict:
-        """``{column: (N,) array}`` of the grasps ``points``, ``normals`` ``(N, n, d)``."""
-        import jax
-
-        import grasp_jax as gj
-
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-            res = gj.robust(self.obj, points, normals, mu=mu, noise=self.noise, key=jax.random.key(self.seed),
-                            samples=self.samples, quantile=self.quantile, num_edges=num_edges,
-                            torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
-        return {self.COLUMNS[f]: v for f, v in res.columns().items()}
-
-    def jaw_columns(self, chunk: Mapping, *, gripper, collision: bool, mu, num_edges, torque_test, contact,
-                    torsion) -> dict:
-        """``{column: (N,) array}`` of the parallel-jaw grasps of ``chunk`` (``center``, ``axis``,
-        ``width``[, ``approach``]) by :func:`grasp_jax.grippers.robust_jaws` on ``obj``'s mesh."""
-        import jax
-
-        from .grippers import robust_jaws
-
-        approaches = chunk.get("approach") if collision else None
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-            res = robust_jaws(self.obj, chunk["center"], chunk["axis"], chunk["width"], approaches, mu=mu,
-                              noise=self.noise, key=jax.random.key(self.seed), samples=self.samples,
-                              gripper=gripper, collision=collision, quantile=self.quantile, num_edges=num_edges,
-                              torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
-        return {self.COLUMNS[f]: v for f, v in res.columns().items()}
-
-
-def _recast_jaws(robust: RobustLabels | None, extra_fields: tuple, metadata: Mapping):
-    """``(gripper, collision)`` where the robust labels of a stream re-cast its parallel-jaw
-    grasps (jaw poses in the chunks, noise that moves contacts), else ``None``."""
-    if robust is None or not robust.noise.moves_contacts:
-        return None
-    if not {"center", "axis", "width", "jaw_status"} <= set(extra_fields):
-        return None
-    from .grippers import ParallelJaw
-
-    gripper = metadata.get("gripper")
-    gripper = ParallelJaw.from_dict(gripper) if isinstance(gripper, Mapping) else None
-    collision = bool(metadata.get("collision")) and gripper is not None and gripper.has_body \
-        and "approach" in extra_fields
-    return gripper, collision
-
-
-# ---------------------------------------------------------------------------------------------
-# The streaming core
-
-
-class _Prefetch:
-    """Iterate ``iterable`` in a daemon thread, ``depth`` items ahead of the consumer."""
-
-    _END = object()
-
-    def __init__(self, iterable: Iterable, depth: int = 2):
-        self._queue: queue.Queue = queue.Queue(maxsize=depth)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(iter(iterable),), daemon=True,
-                                        name="grasp_jax-prefetch")
-        self._thread.start()
-
-    def _put(self, item) -> bool:
-        while not self._stop.is_set():
-            try:
-                self._queue.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def _run(self, it):
-        try:
-            for item in it:
-                if not self._put(("item", item)):
-                    return
-        except BaseException as e:  # noqa: BLE001 - handed to the consumer
-            self._put(("error", e))
-            return
-        self._put(("end", None))
-
-    def __iter__(self):
-        try:
-            while True:
-                kind, item = self._queue.get()
-                if kind == "end":
-                    return
-                if kind == "error":
-                    raise item
-                yield item
-        finally:
-            self.close()
-
-    def close(self):
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-
-def _jsonable(x):
-    if x is None:
-        return None
-    return np.asarray(x, float).tolist()
-
-
-def _pad(a: np.ndarray, size: int) -> np.ndarray:
-    from ._batch import pad_rows
-
-    return pad_rows(a, size)
 
 
 def score_stream(
@@ -237,216 +90,10 @@ def score_stream(
     friction noise alone their contacts do not move and are perturbed as free contacts, failed jaws
     P(force-closure) 0.
     """
-    import jax
-
-    import grasp_jax as gj
-
-    from . import storage
-
-    mu = float(mu)
-    fields = list(storage.RESULT_FIELDS) + list(extra_fields)
-    if epsilon:
-        fields += ["epsilon", "volume"]
-    if critical:
-        fields += list(CRITICAL_FIELDS)
-    if robust is not None:
-        if robust.noise.moves_contacts and robust.obj is None:
-            raise ValueError(f"robust labels under {robust.noise} move contacts over the object: give the object")
-        fields += list(robust.fields())
-    meta = dict(metadata)
-    recast = _recast_jaws(robust, tuple(extra_fields), metadata)
-    if robust is not None:
-        meta["robust"] = robust.to_dict()
-        if recast is not None:
-            meta["robust"]["jaws"] = "recast"
-    if epsilon:
-        meta["epsilon_origin"] = _jsonable(origin) if origin is not None else [0.0] * dim
-        meta["epsilon_torque_scale"] = float(torque_scale)
-    writer = storage.open_writer(out, meta, fields, fingers=fingers, dim=dim) if out is not None else None
-    hist = _QualityHistogram(math.sqrt(1 + mu * mu) * (1 + 1e-9))
-    best = _TopK(top)
-    devices = len(jax.local_devices())
-    counts = dict(num=0, fc=0, unconverged=0, eps_pos=0, eps_dis=0, agree=0)
-    critical_mu = _QualityHistogram(_CRITICAL_RANGE) if critical else None
-    rob = dict(p_sum=0.0, p_fc_sum=0.0, q_sum=0.0, seconds=0.0)
-    eps_max = 0.0
-    have_ref = False
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=num, unit="grasp", unit_scale=True, desc=desc, dynamic_ncols=True, smoothing=0.1)
-    t0 = time.perf_counter()
-    first_seconds, first_size, pad_to = 0.0, 0, 0
-    try:
-        for chunk in chunks:
-            points = np.asarray(chunk["points"], np.float64)
-            normals = np.asarray(chunk["normals"], np.float64)
-            rows = len(points)
-            if rows == 0:
-                continue
-            if not first_size:
-                first_size = rows
-                # Every chunk is scored by one compiled program: a later, smaller chunk is padded to
-                # the first one's size, and no program is compiled for fewer than MIN_ROWS grasps per
-                # device (XLA compiles a loop of one to three blocks differently, and Q changes in the
-                # last bits). So results do not depend on the chunk size.
-                pad_to = max(min(rows, _evaluate_chunk()), MIN_ROWS * devices)
-            with warnings.catch_warnings():
-                warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-                res = gj.evaluate(_pad(points, pad_to), _pad(normals, pad_to), mu=mu, num_edges=num_edges,
-                                  torque_test=torque_test, contact=contact, torsion=torsion)
-            fc = np.asarray(res.force_closure)[:rows]
-            q = np.asarray(res.quality)[:rows]
-            conv = np.asarray(res.converged)[:rows]
-            batch = dict(points=points, normals=normals, force_closure=fc, quality=q, converged=conv)
-            if critical:
-                with warnings.catch_warnings():
-                    warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-                    need, status = gj.critical_friction(_pad(points, pad_to), _pad(normals, pad_to), num_edges=num_edges,
-                                                        contact=contact, torsion=torsion)
-                batch.update(critical_mu=np.asarray(need, np.float64)[:rows],
-                             critical_status=np.asarray(status, np.int8)[:rows])
-            if epsilon:
-                eps = np.empty(rows)
-                vol = np.empty(rows)
-                step = 512
-                for s in range(0, rows, step):
-                    eps[s:s + step], vol[s:s + step] = gj.ferrari_canny(
-                        points[s:s + step], normals[s:s + step], mu=mu, num_edges=num_edges, origin=origin,
-                        torque_scale=torque_scale, contact=contact, torsion=torsion)
-                    if bar is not None:
-                        bar.update(min(step, rows - s))
-                batch.update(epsilon=eps, volume=vol)
-                pos = eps > EPSILON_ZERO
-                counts["eps_pos"] += int(pos.sum())
-                counts["eps_dis"] += int((pos != fc).sum())
-                eps_max = max(eps_max, float(eps.max()))
-            elif bar is not None:
-                bar.update(rows)
-            if robust is not None:
-                t_robust = time.perf_counter()
-                if recast is not None:  # parallel-jaw grasps: the closing lines cast again under noise
-                    batch.update(robust.jaw_columns(chunk, gripper=recast[0], collision=recast[1], mu=mu,
-                                                    num_edges=num_edges, torque_test=torque_test, contact=contact,
-                                                    torsion=torsion))
-                else:
-                    batch.update(robust.columns(points, normals, mu=mu, num_edges=num_edges,
-                                                torque_test=torque_test, contact=contact, torsion=torsion))
-                rob["seconds"] += time.perf_counter() - t_robust
-            if "force_closure" in chunk:
-                have_ref = True
-                counts["agree"] += int((np.asarray(chunk["force_closure"], bool) == fc).sum())
-            if extra_fields:  # parallel-jaw poses: written as they come; failed jaws never hold
-                batch.update({name: chunk[name] for name in extra_fields})
-                if "jaw_status" in chunk:
-                    _mask_failed_jaws(batch, chunk["jaw_status"], robust=recast is None)
-                    fc, q = batch["force_closure"], batch["quality"]
-            if critical:
-                batch["friction_label"] = gj.friction_label(batch["critical_mu"])
-                critical_mu.add(np.minimum(batch["critical_mu"], _CRITICAL_RANGE))
-            if writer is not None:
-                writer.write(batch)
-            if robust is not None:
-                rob["p_sum"] += float(batch["p_fc"].sum())
-                rob["p_fc_sum"] += float(batch["p_fc"][fc].sum())
-                rob["q_sum"] += float(batch["q_mean"].sum())
-            hist.add(q[fc])
-            best.add(index_offset + counts["num"], points, normals, q, fc)
-            counts["num"] += rows
-            counts["fc"] += int(fc.sum())
-            counts["unconverged"] += int((~conv).sum())
-            if not first_seconds:
-                first_seconds = time.perf_counter() - t0
-            if bar is not None:
-                bar.set_postfix_str(f"FC {100 * counts['fc'] / counts['num']:.1f}%", refresh=False)
-        path = writer.close() if writer is not None else None
-    except BaseException:
-        if writer is not None:
-            writer.abort()
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
-    seconds = time.perf_counter() - t0
-    meta["num"] = counts["num"]
-    return PipelineSummary(
-        num=counts["num"],
-        force_closure=counts["fc"],
-        unconverged=counts["unconverged"],
-        quality_percentiles={p: hist.percentile(p) for p in PERCENTILES},
-        quality_mean=hist.sum / hist.total if hist.total else math.nan,
-        quality_max=hist.max if hist.total else math.nan,
-        seconds=seconds,
-        first_chunk_seconds=first_seconds,
-        first_chunk=first_size,
-        best=best.best,
-        output=path,
-        metadata=meta,
-        devices=devices,
-        epsilon_positive=counts["eps_pos"] if epsilon else None,
-        epsilon_disagree=counts["eps_dis"] if epsilon else None,
-        epsilon_max=eps_max if epsilon else None,
-        agree=counts["agree"] if have_ref else None,
-        critical_percentiles=({p: critical_mu.percentile(p) for p in PERCENTILES} if critical and critical_mu.total
-                              else None),
-        robust=None if robust is None else _robust_summary(robust, counts, rob),
-    )
-
-
-#: Columns of the critical friction (``critical=True``): ``mu*`` (``inf`` above the cap), its
-#: :class:`grasp_jax.FrictionStatus` and GraspNet-1Billion's label (:func:`grasp_jax.friction_label`).
-CRITICAL_FIELDS = ("critical_mu", "critical_status", "friction_label")
-#: The summary's histogram of ``mu*`` spans ``[0, cap]``; grasps above the cap count at its end.
-_CRITICAL_RANGE = 4.0
-
-
-def _robust_summary(robust: RobustLabels, counts: dict, rob: dict) -> dict:
-    """The robust labels' part of the summary: mean P(force-closure) over all grasps and over the
-    nominally force-closure ones, mean expected Q, time."""
-    num = counts["num"]
-    return {
-        "samples": int(robust.samples),
-        "noise": str(robust.noise),
-        "p_fc_mean": rob["p_sum"] / num if num else math.nan,
-        "p_fc_mean_nominal_fc": rob["p_fc_sum"] / counts["fc"] if counts["fc"] else math.nan,
-        "q_mean_mean": rob["q_sum"] / num if num else math.nan,
-        "seconds": rob["seconds"],
-        "perturbed_per_second": num * robust.samples / rob["seconds"] if rob["seconds"] > 0 else math.nan,
-    }
-
-
-def _mask_failed_jaws(batch: dict, jaw_status, robust: bool = True) -> None:
-    """Grasps whose jaw status is not ``OK``: not force-closure, Q 0, critical friction ``inf``
-    (``grasp_jax.grippers.score_grasps``'s rule), in place; ``robust``: their robust labels 0 too
-    (their fill contacts perturbed as free contacts mean nothing; re-cast jaws keep their labels:
-    a perturbed pose may close where the nominal one does not)."""
-    from .grippers._score import mask_failed
-
-    fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
-                                batch.get("critical_status"))
-    batch.update(force_closure=fc, quality=q)
-    failed = np.asarray(jaw_status) != 0
-    for name in RobustLabels.COLUMNS.values() if robust else ():
-        if name in batch and name != "robust_unconverged":
-            batch[name] = np.where(failed, 0.0, batch[name])
-    if mu is not None:
-        batch["critical_mu"] = mu
-    if st is not None:
-        batch["critical_status"] = st
-
-
-def _evaluate_chunk() -> int:
-    """Grasps per compiled call of :func:`grasp_jax.evaluate` on the local devices: a chunk at
-    least this large never compiles another size."""
-    import jax
-
-    try:
-        from ._batch import _sizes
-
-        return int(_sizes(tuple(jax.local_devices()), None)[1])
-    except (ImportError, AttributeError, TypeError, IndexError):  # internals changed: pad fully
-        return 1 << 62
+    scoring = Scoring(mu=float(mu), num_edges=num_edges, torque_test=torque_test, contact=contact, torsion=torsion,
+                      epsilon=epsilon, origin=origin, torque_scale=torque_scale, critical=critical, robust=robust)
+    return _score(chunks, scoring, num=num, fingers=fingers, dim=dim, metadata=metadata, out=out, progress=progress,
+                  top=top, desc=desc, index_offset=index_offset, extra_fields=tuple(extra_fields))
 
 
 def default_chunk() -> int:
@@ -472,6 +119,17 @@ def _check_settings(mu, num_edges, torque_test, chunk, top):
         raise ValueError(f"top must be an integer >= 0; got {top!r}")
 
 
+def _check_frame(origin, torque_scale, dim: int) -> tuple[np.ndarray, float]:
+    """The baseline's frame validated: ``origin`` ``(dim,)`` and a finite ``torque_scale`` > 0."""
+    origin = np.asarray(origin, float)
+    if origin.shape != (dim,):
+        raise ValueError(f"origin must have {dim} coordinates; got {origin.tolist()}")
+    torque_scale = float(torque_scale)
+    if not (math.isfinite(torque_scale) and torque_scale > 0):
+        raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
+    return origin, torque_scale
+
+
 def _check_contact(contact, torsion, dim: int) -> tuple[str, float | None]:
     """``(contact, torsion)`` validated (``grasp_jax._api.check_contact``); torsion ``None`` for
     hard contacts, as :func:`grasp_jax.evaluate` takes it."""
@@ -486,28 +144,22 @@ def _contact_metadata(contact: str, torsion) -> dict:
     return {"contact": contact} if contact == "hard" else {"contact": contact, "torsion": float(torsion)}
 
 
-def _slice_chunks(chunks: Iterator, start: int, stop: int, size: int | None = None) -> Iterator[dict]:
-    """Rows ``[start, stop)`` of a stream of ``(points, normals)`` chunks, re-cut into chunks of
-    ``size`` rows (the last may be shorter; default: as they come)."""
-    held, count, pos = [], 0, 0
-    for points, normals in chunks:
-        end = pos + len(points)
-        lo, hi = max(start, pos), min(stop, end)
-        if lo < hi:
-            held.append((points[lo - pos:hi - pos], normals[lo - pos:hi - pos]))
-            count += hi - lo
-        pos = end
-        while held and (size is None or count >= size):
-            p, n = (np.concatenate(a) if len(held) > 1 else a[0] for a in zip(*held))
-            take = len(p) if size is None else size
-            yield {"points": p[:take], "normals": n[:take]}
-            held = [(p[take:], n[take:])] if take < len(p) else []
-            count -= take
-        if pos >= stop:
-            break
-    if count:
-        p, n = (np.concatenate(a) for a in zip(*held))
-        yield {"points": p, "normals": n}
+@dataclasses.dataclass(frozen=True)
+class _Sampling:
+    """How :func:`run` draws its grasps: ``num`` of them (this process's rows ``[start, stop)``),
+    ``fingers`` contacts each, as :func:`grasp_jax.sampling.iter_grasps` or, with a ``gripper``,
+    :func:`grasp_jax.grippers.antipodal_grasps`."""
+
+    num: int
+    fingers: int
+    seed: int
+    scheme: str
+    chunk: int
+    first_contact: int | None
+    gripper: object
+    collision: bool
+    start: int
+    stop: int
 
 
 def run(
@@ -577,83 +229,99 @@ def run(
     Returns:
         :class:`PipelineSummary`.
     """
-    from . import sampling, storage
-
     critical = gripper is not None if critical is None else bool(critical)
+    num, fingers, chunk = _check_run(num, fingers, chunk, mu, num_edges, torque_test, top)
+    contact, torsion = _check_contact(contact, torsion, int(obj.dim))
+    index, count = _devices.process_slot() if distributed else (0, 1)
+    start, stop = slice_bounds(num, index, count)
+    if out is not None:
+        out = part_path(_storage().check_output_path(out), index, count)
+    if epsilon:
+        origin, torque_scale = _check_frame(obj.center if origin is None else origin,
+                                            obj.radius if torque_scale is None else torque_scale, obj.dim)
+    sampling = _Sampling(num=num, fingers=fingers, seed=int(seed), scheme=scheme, chunk=chunk,
+                         first_contact=first_contact, gripper=gripper, collision=collision, start=start, stop=stop)
+    meta = _run_metadata(obj, sampling, mu=mu, num_edges=num_edges, torque_test=torque_test, contact=contact,
+                         torsion=torsion, object_spec=object_spec, object_holes=object_holes, critical=critical,
+                         slot=(index, count))
+    chunks, extra = _run_chunks(obj, sampling, meta, mu=mu)
+    scoring = Scoring(mu=float(mu), num_edges=num_edges, torque_test=torque_test, contact=contact, torsion=torsion,
+                      epsilon=epsilon, origin=origin, torque_scale=torque_scale if torque_scale is not None else 1.0,
+                      critical=critical, robust=_with_object(robust, obj))
+    try:
+        return _score(chunks, scoring, num=stop - start, fingers=fingers, dim=int(obj.dim), metadata=meta, out=out,
+                      progress=progress, top=top, desc=f"{obj.name} x{fingers}", index_offset=start,
+                      extra_fields=extra)
+    finally:
+        chunks.close()
 
+
+def _storage():
+    from . import storage
+
+    return storage
+
+
+def _check_run(num, fingers, chunk, mu, num_edges, torque_test, top) -> tuple[int, int, int]:
+    """``(num, fingers, chunk)`` of :func:`run` validated (``chunk`` ``None``: :func:`default_chunk`)."""
     if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 1:
         raise ValueError(f"num must be a positive integer; got {num!r}")
     if isinstance(fingers, bool) or not isinstance(fingers, (int, np.integer)) or fingers < 2:
         raise ValueError(f"fingers must be an integer >= 2; got {fingers!r}")
     chunk = default_chunk() if chunk is None else chunk
     _check_settings(mu, num_edges, torque_test, chunk, top)
-    contact, torsion = _check_contact(contact, torsion, int(obj.dim))
-    num, fingers, chunk = int(num), int(fingers), int(chunk)
-    index, count = 0, 1
-    if distributed:
-        index, count = _devices.process_slot()
-    start, stop = slice_bounds(num, index, count)
-    if out is not None:
-        out = part_path(storage.check_output_path(out), index, count)
-    if epsilon:
-        origin = np.asarray(obj.center, float) if origin is None else np.asarray(origin, float)
-        torque_scale = float(obj.radius) if torque_scale is None else float(torque_scale)
-        if origin.shape != (obj.dim,):
-            raise ValueError(f"origin must have {obj.dim} coordinates; got {origin.tolist()}")
-        if not (math.isfinite(torque_scale) and torque_scale > 0):
-            raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
+    return int(num), int(fingers), int(chunk)
+
+
+def _run_metadata(obj, sampling: _Sampling, *, mu, num_edges, torque_test, contact, torsion, object_spec,
+                  object_holes, critical: bool, slot: tuple[int, int]) -> dict:
+    """The result file's metadata of :func:`run`: the object, the sampling and scoring settings,
+    this process's slice."""
+    storage = _storage()
+    first_contact = sampling.first_contact
     meta = storage.metadata(
         object=storage.object_spec(obj, object_spec),
         object_name=str(obj.name),
         dim=int(obj.dim),
         mu=float(mu),
         edges=int(num_edges),
-        fingers=fingers,
-        seed=int(seed),
-        scheme=scheme,
-        num=stop - start,
+        fingers=sampling.fingers,
+        seed=sampling.seed,
+        scheme=sampling.scheme,
+        num=sampling.stop - sampling.start,
         torque_test=torque_test,
         first_contact=None if first_contact is None else int(first_contact),
         **_contact_metadata(contact, torsion),
     )
     if object_holes:
         meta["object_holes"] = [storage.object_spec(obj, h) for h in object_holes]
+    index, count = slot
     if count > 1:
-        meta.update(process_index=index, process_count=count, slice=[start, stop, num])
+        meta.update(process_index=index, process_count=count, slice=[sampling.start, sampling.stop, sampling.num])
     if critical:
         meta["critical_friction_cap"] = _CRITICAL_RANGE
-    kwargs = {} if first_contact is None else {"first_contact": first_contact}
-    extra = ()
-    if gripper is not None:  # parallel-jaw grasps: grasp_jax.grippers
-        from . import grippers
-
-        if fingers != 2 or scheme != "uniform" or first_contact is not None or obj.dim != 3:
-            raise ValueError("parallel-jaw grasps have 2 contacts on a 3D mesh, sampled antipodally: "
-                             "leave fingers, scheme and first_contact at their defaults")
-        meta.update(scheme="antipodal", gripper=gripper.to_dict(), collision=bool(collision))
-        extra = grippers.POSE_FIELDS
-        chunks = _Prefetch(grippers._antipodal.column_chunks(obj, num, start, stop, chunk, mu=mu, gripper=gripper,
-                                                             seed=seed, collision=collision))
-    else:
-        stream = sampling.iter_grasps(obj, num, fingers, seed=seed, scheme=scheme, chunk=chunk, **kwargs)
-        chunks = _Prefetch(_slice_chunks(stream, start, stop, chunk))
-    try:
-        return score_stream(
-            chunks, num=stop - start, fingers=fingers, dim=int(obj.dim), mu=mu, num_edges=num_edges,
-            torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
-            torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
-            top=top, desc=f"{obj.name} x{fingers}", index_offset=start, contact=contact, torsion=torsion,
-            extra_fields=extra, critical=critical, robust=_with_object(robust, obj),
-        )
-    finally:
-        chunks.close()
+    return meta
 
 
-def _with_object(robust: RobustLabels | None, obj) -> RobustLabels | None:
-    """``robust`` with its object set to ``obj`` where it has none."""
-    if robust is None or robust.obj is not None or obj is None:
-        return robust
-    return dataclasses.replace(robust, obj=obj)
+def _run_chunks(obj, sampling: _Sampling, meta: dict, *, mu) -> tuple[_Prefetch, tuple]:
+    """``(chunks, extra fields)``: this process's grasps of ``obj``, prefetched; with a gripper the
+    antipodal parallel-jaw grasps and their pose columns (``meta`` records the gripper)."""
+    from . import sampling as _sampling
+
+    s = sampling
+    if s.gripper is None:
+        kwargs = {} if s.first_contact is None else {"first_contact": s.first_contact}
+        stream = _sampling.iter_grasps(obj, s.num, s.fingers, seed=s.seed, scheme=s.scheme, chunk=s.chunk, **kwargs)
+        return _Prefetch(_slice_chunks(stream, s.start, s.stop, s.chunk)), ()
+    from . import grippers
+
+    if s.fingers != 2 or s.scheme != "uniform" or s.first_contact is not None or obj.dim != 3:
+        raise ValueError("parallel-jaw grasps have 2 contacts on a 3D mesh, sampled antipodally: "
+                         "leave fingers, scheme and first_contact at their defaults")
+    meta.update(scheme="antipodal", gripper=s.gripper.to_dict(), collision=bool(s.collision))
+    chunks = _Prefetch(grippers._antipodal.column_chunks(obj, s.num, s.start, s.stop, s.chunk, mu=mu,
+                                                         gripper=s.gripper, seed=s.seed, collision=s.collision))
+    return chunks, grippers.POSE_FIELDS
 
 
 def score_file(
@@ -684,8 +352,7 @@ def score_file(
     agree. ``critical``: also the critical friction (columns :data:`CRITICAL_FIELDS`). Other
     arguments as :func:`run` (``robust``: noise that moves contacts needs ``obj``).
     """
-    from . import storage
-
+    storage = _storage()
     src = storage.ResultFile(path)
     stored = src.metadata
     mu = stored.get("mu", DEFAULT_MU) if mu is None else mu
@@ -700,17 +367,38 @@ def score_file(
     if out is not None:
         out = storage.check_output_path(out)
     if epsilon:
-        if obj is not None:
-            origin = obj.center if origin is None else origin
-            torque_scale = obj.radius if torque_scale is None else torque_scale
-        if origin is None or torque_scale is None:
-            raise ValueError("the epsilon baseline needs the object (--object) or both --origin and --torque-scale")
-        origin = np.asarray(origin, float)
-        if origin.shape != (src.dim,):
-            raise ValueError(f"origin must have {src.dim} coordinates; got {origin.tolist()}")
-        torque_scale = float(torque_scale)
-        if not (math.isfinite(torque_scale) and torque_scale > 0):
-            raise ValueError(f"torque_scale must be a finite number > 0; got {torque_scale}")
+        origin, torque_scale = _file_frame(obj, origin, torque_scale, src.dim)
+    meta = _file_metadata(src, path, obj, mu=mu, num_edges=num_edges, torque_test=torque_test, contact=contact,
+                          torsion=torsion)
+    columns = ("points", "normals") + (("force_closure",) if "force_closure" in src.fields else ())
+    # parallel-jaw poses are carried over, and their failed grasps stay failed
+    extra = tuple(f for f in storage.VECTOR_FIELDS + ("width", "jaw_status") if f in src.fields)
+    chunks = _Prefetch(src.iter_chunks(columns + extra, chunk))
+    scoring = Scoring(mu=float(mu), num_edges=int(num_edges), torque_test=torque_test, contact=contact,
+                      torsion=torsion, epsilon=epsilon, origin=origin,
+                      torque_scale=torque_scale if torque_scale is not None else 1.0, critical=critical,
+                      robust=_with_object(robust, obj))
+    try:
+        return _score(chunks, scoring, num=src.num, fingers=src.fingers, dim=src.dim, metadata=meta, out=out,
+                      progress=progress, top=top, desc=Path(path).name, extra_fields=extra)
+    finally:
+        chunks.close()
+
+
+def _file_frame(obj, origin, torque_scale, dim: int) -> tuple[np.ndarray, float]:
+    """The baseline's frame of :func:`score_file`: given, else the object's centre and radius."""
+    if obj is not None:
+        origin = obj.center if origin is None else origin
+        torque_scale = obj.radius if torque_scale is None else torque_scale
+    if origin is None or torque_scale is None:
+        raise ValueError("the epsilon baseline needs the object (--object) or both --origin and --torque-scale")
+    return _check_frame(origin, torque_scale, dim)
+
+
+def _file_metadata(src, path, obj, *, mu, num_edges, torque_test, contact, torsion) -> dict:
+    """The stored metadata of ``src`` with this scoring's settings and source."""
+    storage = _storage()
+    stored = src.metadata
     meta = {k: v for k, v in stored.items() if k not in ("epsilon_origin", "epsilon_torque_scale", "torsion")}
     meta.update(storage.metadata(
         source=str(Path(path).resolve()),
@@ -725,20 +413,7 @@ def score_file(
     if obj is not None:
         meta.setdefault("object", str(obj.name))
         meta.setdefault("object_name", str(obj.name))
-    columns = ("points", "normals") + (("force_closure",) if "force_closure" in src.fields else ())
-    # parallel-jaw poses are carried over, and their failed grasps stay failed
-    extra = tuple(f for f in storage.VECTOR_FIELDS + ("width", "jaw_status") if f in src.fields)
-    chunks = _Prefetch(src.iter_chunks(columns + extra, chunk))
-    try:
-        return score_stream(
-            chunks, num=src.num, fingers=src.fingers, dim=src.dim, mu=mu, num_edges=int(num_edges),
-            torque_test=torque_test, metadata=meta, epsilon=epsilon, origin=origin,
-            torque_scale=torque_scale if torque_scale is not None else 1.0, out=out, progress=progress,
-            top=top, desc=Path(path).name, contact=contact, torsion=torsion, extra_fields=extra,
-            critical=critical, robust=_with_object(robust, obj),
-        )
-    finally:
-        chunks.close()
+    return meta
 
 
 __all__ = [

@@ -12,7 +12,7 @@ docs/guides/result-files.md), and a metadata dictionary (object, mu, edges, fing
 
 Writers take the grasps chunk by chunk with flat memory and are atomic: a hidden temporary file in
 the destination directory, ``fsync``-ed and moved over the destination with :func:`os.replace`
-only when the writer closes without error.
+only when the writer closes without error (paths and atomic writes: ``grasp_jax._atomic``).
 """
 
 from __future__ import annotations
@@ -22,12 +22,25 @@ import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Iterator, Mapping
 
 import numpy as np
 
-SUFFIXES = (".npz", ".parquet")
+from ._atomic import (  # noqa: F401 - paths and atomic writes, re-exported where they were
+    SUFFIXES,
+    _umask,
+    cannot_write,
+    check_input_path,
+    check_output_path,
+    fsync_dir,
+    publish_mode,
+    temp_file,
+    write_atomically,
+)
+from ._atomic import cannot_write as _cannot_write  # noqa: F401 - the names this module had
+from ._atomic import fsync_dir as _fsync_dir  # noqa: F401
+
 #: Metadata key in a Parquet schema.
 PARQUET_KEY = b"grasp_jax"
 #: Per-grasp scalar fields and their dtypes, in file order.
@@ -71,27 +84,6 @@ SERIES_FIELDS = {
 _COPY = 1 << 24  # bytes per copy step when assembling an archive
 
 
-def check_output_path(path, *, suffixes=SUFFIXES, what: str = "output file") -> Path:
-    """Validate an output path before any work is done: known suffix, existing directory.
-
-    Raises:
-        ValueError: with one sentence naming the problem.
-    """
-    path = Path(path)
-    if path.suffix.lower() not in suffixes:
-        raise ValueError(
-            f"{what} {str(path)!r} must end in {' or '.join(suffixes)}; got {path.suffix or 'no suffix'!r}"
-        )
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ValueError(f"the directory of {what} {str(path)!r} does not exist: {str(parent)!r}")
-    if path.is_dir():
-        raise ValueError(f"{what} {str(path)!r} is a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write {what} {str(path)!r}: its directory {str(parent)!r} is not writable")
-    return path
-
-
 def metadata(**kwargs) -> dict:
     """A result file's metadata: the grasp_jax version and the date (UTC), then ``kwargs``."""
     import datetime
@@ -113,68 +105,6 @@ def object_spec(obj, spec) -> str:
         return str(obj.name)
     spec = str(spec)
     return os.path.abspath(spec) if os.path.exists(spec) else spec
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def publish_mode(fd: int) -> None:
-    """Give a temporary file made by :func:`tempfile.mkstemp` (mode 0600) the mode a plain
-    ``open(path, "w")`` would have (0666 less the umask), before it is renamed into place."""
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())
-    except (OSError, AttributeError):  # no fchmod on this platform / filesystem
-        pass
-
-
-def _cannot_write(what: str, path: Path, exc: OSError) -> ValueError:
-    return ValueError(f"cannot write {what} {str(path)!r}: {exc.strerror or exc}")
-
-
-def temp_file(path: Path, *, suffix: str = ".tmp", what: str = "output file") -> tuple[int, Path]:
-    """A hidden temporary file beside ``path``, with the mode a plain ``open`` would give, to be
-    renamed onto ``path`` once complete (atomic publication). A failure is one ``ValueError``."""
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, name = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=suffix)
-    except OSError as exc:
-        raise _cannot_write(what, path, exc) from None
-    publish_mode(fd)
-    return fd, Path(name)
-
-
-def write_atomically(path: Path, write, *, mode: str = "w", what: str = "output file") -> Path:
-    """Publish a small file atomically: ``write(f)`` fills a :func:`temp_file` opened with
-    ``mode`` (``"w"``: UTF-8 text, ``"wb"``), which is flushed, ``fsync``-ed and renamed onto
-    ``path``; on any exception it is removed and nothing is published."""
-    path = Path(path)
-    fd, tmp = temp_file(path, what=what)
-    try:
-        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:  # not supported on this platform / filesystem
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _field_layout(fields, fingers: int, dim: int, steps: int | None, frames: int | None = None
@@ -253,7 +183,7 @@ class ResultWriter:
             self.abort()
             raise
         self._done = True
-        _fsync_dir(self.directory)
+        fsync_dir(self.directory)
         return self.path
 
     def abort(self) -> None:
@@ -294,7 +224,7 @@ class NpzWriter(ResultWriter):
             self._scratch = Path(tempfile.mkdtemp(dir=self.directory, prefix=f".{self.path.name}.",
                                                   suffix=".tmp"))
         except OSError as exc:
-            raise _cannot_write("output file", self.path, exc) from None
+            raise cannot_write("output file", self.path, exc) from None
         self._files = {name: open(self._scratch / f"{name}.raw", "wb") for name in self.dtypes}
         self._archive: Path | None = None
 
@@ -427,20 +357,6 @@ def open_writer(path, metadata: Mapping, fields, *, fingers: int, dim: int,
 
 # ---------------------------------------------------------------------------------------------
 # Readers
-
-
-def check_input_path(path, *, what: str = "input file") -> Path:
-    """An existing ``.npz`` / ``.parquet`` file, or a ``ValueError`` / ``FileNotFoundError``."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{what} {str(path)!r} does not exist")
-    if path.is_dir():
-        raise ValueError(f"{what} {str(path)!r} is a directory")
-    if path.suffix.lower() not in SUFFIXES:
-        raise ValueError(
-            f"{what} {str(path)!r} must end in {' or '.join(SUFFIXES)}; got {path.suffix or 'no suffix'!r}"
-        )
-    return path
 
 
 class _NpyStream:

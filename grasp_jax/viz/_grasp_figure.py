@@ -168,6 +168,24 @@ def _jaw_meshes(shown: ShownGrasps, gripper):
     return world.reshape(len(widths), 8 * boxes, 3), tri
 
 
+class _Canvas:
+    """The figure being drawn and, per trace, the rank of the grasp it belongs to (-1: none), which
+    the menu's visibility lists follow."""
+
+    def __init__(self, fig):
+        self.fig = fig
+        self.owner: list[int] = []
+
+    def add(self, trace, r=-1, row=1, col=1):
+        self.fig.add_trace(trace, row=row, col=col)
+        self.owner.append(r)
+
+
+def _line(d: int):
+    """The line trace type of dimension ``d``."""
+    return go.Scatter3d if d == 3 else go.Scatter
+
+
 def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8, contact: str = "hard",
                  torsion: float | None = None, title: str | None = None, max_faces: int = MAX_FACES,
                  central_axis: bool = True, gripper=None):
@@ -191,8 +209,6 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
     Returns:
         A :class:`plotly.graph_objects.Figure`.
     """
-
-
     k = len(shown)
     if k == 0:
         raise ValueError("no grasp to draw")
@@ -200,13 +216,45 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
     nrm = unit(shown.normals)
     if pts.ndim != 3 or pts.shape != nrm.shape or pts.shape[-1] not in (2, 3):
         raise ValueError(f"points and normals must be (k, n, d) with d in {{2, 3}}; got {pts.shape}, {nrm.shape}")
-    _, n, d = pts.shape
+    d = pts.shape[-1]
+    series = _series(shown)
+    canvas = _Canvas(_grid(shown, d, series is not None))
+    lo, hi, note = _draw_object(canvas, geometry, d, max_faces)
+    lo = np.minimum(lo, pts.reshape(-1, d).min(0))
+    hi = np.maximum(hi, pts.reshape(-1, d).max(0))
+    extent = float(np.max(hi - lo)) or 1.0
+    centre = 0.5 * (lo + hi)
+    hover_rows = [_grasp_lines(shown, r) for r in range(k)]
+    jaws = _jaw_meshes(shown, gripper)
+    paths = _paths(shown)
+    axis = dict(mu=mu, num_edges=num_edges, contact=contact, torsion=torsion) if central_axis else None
+    for r in range(k):
+        _draw_grasp(canvas, shown, r, pts[r], nrm[r], hover_rows[r], length=0.1 * extent, mu=mu,
+                    num_edges=num_edges, jaws=jaws)
+        if axis is not None:
+            _draw_axis(canvas, r, pts[r], nrm[r], hover_rows[r][0], centre, extent, axis)
+        if paths is not None:
+            _draw_path(canvas, r, paths, hover_rows[r][0])
+    _draw_table(canvas, shown)
+    _draw_quality(canvas, shown, hover_rows, series)
+    _set_axes(canvas.fig, shown, d, centre, extent, series is not None)
+    _add_menu(canvas, shown, d, title, note)
+    return canvas.fig
+
+
+def _series(shown: ShownGrasps):
+    """``(k, steps)`` Q per optimizer step of the drawn grasps, or ``None``."""
     cols = shown.columns
     series = np.asarray(cols["quality_history"], float) if "quality_history" in cols else None
-    if series is not None and (series.ndim != 2 or series.shape[0] != k):
-        series = None
-    paths = _paths(shown)
-    rows = 3 if series is not None else 2
+    if series is not None and (series.ndim != 2 or series.shape[0] != len(shown)):
+        return None
+    return series
+
+
+def _grid(shown: ShownGrasps, d: int, with_series: bool):
+    """The subplots: the scene (left), the table, the Q histogram and (``with_series``) Q against
+    step (right)."""
+    rows = 3 if with_series else 2
     spec_main = {"type": "scene" if d == 3 else "xy", "rowspan": rows}
     specs = [[spec_main, {"type": "table"}], [None, {"type": "xy"}]]
     heights = [0.45, 0.55]
@@ -217,138 +265,137 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
               if shown.histogram is not None else "Q of the drawn grasps"]
     if rows == 3:
         titles.append("Q against step (drawn grasps)")
-    fig = make_subplots(rows=rows, cols=2, column_widths=[0.64, 0.36], row_heights=heights, specs=specs,
-                        horizontal_spacing=0.03, vertical_spacing=0.11, subplot_titles=titles)
-    owner: list[int] = []  # per trace: grasp rank, or -1
+    return make_subplots(rows=rows, cols=2, column_widths=[0.64, 0.36], row_heights=heights, specs=specs,
+                         horizontal_spacing=0.03, vertical_spacing=0.11, subplot_titles=titles)
 
-    def add(trace, r=-1, row=1, col=1):
-        fig.add_trace(trace, row=row, col=col)
-        owner.append(r)
 
-    # the object ---------------------------------------------------------------------------------
+def _draw_object(canvas: _Canvas, geometry, d: int, max_faces: int):
+    """The mesh (3D) or the polygon's rings (2D); ``(lo, hi, note)``: its bounds ``(d,)`` and the
+    decimation note."""
     note = None
     if d == 3:
         v, f = mesh_arrays(geometry)
         v, f, note = display_mesh(v, f, max_faces)
-        lo, hi = v.min(0), v.max(0)
-        add(go.Mesh3d(**_xyz(v, 3), i=f[:, 0].astype(np.int32), j=f[:, 1].astype(np.int32),
-                      k=f[:, 2].astype(np.int32), color=OBJECT_MESH, opacity=0.55, flatshading=False,
-                      lighting=dict(ambient=0.55, diffuse=0.7, specular=0.15, roughness=0.8),
-                      hoverinfo="skip", name="object", showlegend=True, legendgroup="object"))
+        canvas.add(go.Mesh3d(**_xyz(v, 3), i=f[:, 0].astype(np.int32), j=f[:, 1].astype(np.int32),
+                             k=f[:, 2].astype(np.int32), color=OBJECT_MESH, opacity=0.55, flatshading=False,
+                             lighting=dict(ambient=0.55, diffuse=0.7, specular=0.15, roughness=0.8),
+                             hoverinfo="skip", name="object", showlegend=True, legendgroup="object"))
+        return v.min(0), v.max(0), note
+    rings = as_rings(geometry)
+    allv = np.concatenate(rings)
+    for i, ring in enumerate(rings):
+        closed = np.concatenate([ring, ring[:1]])
+        canvas.add(go.Scatter(x=closed[:, 0], y=closed[:, 1], mode="lines", fill="toself",
+                              fillcolor=OBJECT_MESH if i == 0 else "white", line=dict(color="#4d5b6b", width=1.5),
+                              hoverinfo="skip", name="object" if i == 0 else f"hole {i}",
+                              showlegend=i == 0, legendgroup="object"))
+    return allv.min(0), allv.max(0), note
+
+
+def _draw_grasp(canvas: _Canvas, shown: ShownGrasps, r: int, p, nr, hover: list, *, length: float, mu: float,
+                num_edges: int, jaws) -> None:
+    """Grasp ``r``: its contacts ``p`` ``(n, d)`` with their hover text, the gripper body (where
+    ``jaws``), the outward normals ``nr`` and the friction pyramids (3D) or cones (2D)."""
+    n, d = p.shape
+    group = dict(legendgroup=f"grasp {r}")
+    label = f"#{r + 1}: grasp {int(shown.index[r])}"
+    if "quality" in shown.columns:
+        label += f", Q {float(shown.columns['quality'][r]):.3f}"
+    text = ["<br>".join([f"contact c_{j + 1}"] + hover) for j in range(n)]
+    colours = [FIRST] + [CONTACT] * (n - 1)
+    sizes = [9] + [6] * (n - 1) if d == 3 else [13] + [10] * (n - 1)
+    marker = dict(color=colours, size=sizes, line=dict(color="white", width=1))
+    labels = [f"c{j + 1}" for j in range(n)]
+    if d == 3:
+        canvas.add(go.Scatter3d(**_xyz(p, 3), mode="markers+text", marker=marker, text=labels,
+                                hovertext=text, hovertemplate="%{hovertext}<extra></extra>",
+                                textposition="top center", textfont=dict(size=10, color=CONTACT),
+                                name=label, showlegend=True, **group), r)
     else:
-        rings = as_rings(geometry)
-        allv = np.concatenate(rings)
-        lo, hi = allv.min(0), allv.max(0)
-        for i, ring in enumerate(rings):
-            closed = np.concatenate([ring, ring[:1]])
-            add(go.Scatter(x=closed[:, 0], y=closed[:, 1], mode="lines", fill="toself",
-                           fillcolor=OBJECT_MESH if i == 0 else "white", line=dict(color="#4d5b6b", width=1.5),
-                           hoverinfo="skip", name="object" if i == 0 else f"hole {i}",
-                           showlegend=i == 0, legendgroup="object"))
-    lo = np.minimum(lo, pts.reshape(-1, d).min(0))
-    hi = np.maximum(hi, pts.reshape(-1, d).max(0))
-    extent = float(np.max(hi - lo)) or 1.0
-    centre = 0.5 * (lo + hi)
-    length = 0.1 * extent
+        canvas.add(go.Scatter(**_xyz(p, 2), mode="markers+text", marker=marker, text=labels, hovertext=text,
+                              hovertemplate="%{hovertext}<extra></extra>", textposition="top center",
+                              name=label, showlegend=True, **group), r)
+    if jaws is not None:  # the gripper: finger boxes and palm at the jaw pose
+        jv, jf = jaws
+        canvas.add(go.Mesh3d(**_xyz(jv[r], 3), i=jf[:, 0].astype(np.int32), j=jf[:, 1].astype(np.int32),
+                             k=jf[:, 2].astype(np.int32), color=JAW, opacity=0.45, flatshading=True,
+                             hovertext=["gripper<br>" + "<br>".join(hover)] * len(jv[r]),
+                             hovertemplate="%{hovertext}<extra></extra>", name="gripper", showlegend=False,
+                             **group), r)
+    seg = np.stack([p, p + 1.35 * length * nr], axis=1)  # normals, outward
+    canvas.add(_line(d)(**_xyz(_gaps(seg), d), mode="lines", line=dict(color="#333333", width=3 if d == 3 else 1.5),
+                        hoverinfo="skip", name="normals", showlegend=False, **group), r)
+    _draw_cones(canvas, r, p, nr, length=length, mu=mu, num_edges=num_edges)
 
-    # the grasps ---------------------------------------------------------------------------------
-    hover_rows = [_grasp_lines(shown, r) for r in range(k)]
-    jaws = _jaw_meshes(shown, gripper)
-    for r in range(k):
-        p, nr = pts[r], nrm[r]
-        group = f"grasp {r}"
-        label = f"#{r + 1}: grasp {int(shown.index[r])}"
-        if "quality" in cols:
-            label += f", Q {float(cols['quality'][r]):.3f}"
-        text = ["<br>".join([f"contact c_{j + 1}"] + hover_rows[r]) for j in range(n)]
-        colours = [FIRST] + [CONTACT] * (n - 1)
-        sizes = [9] + [6] * (n - 1) if d == 3 else [13] + [10] * (n - 1)
-        marker = dict(color=colours, size=sizes, line=dict(color="white", width=1))
-        common = dict(legendgroup=group)
-        labels = [f"c{j + 1}" for j in range(n)]
-        if d == 3:
-            add(go.Scatter3d(**_xyz(p, 3), mode="markers+text", marker=marker, text=labels,
-                             hovertext=text, hovertemplate="%{hovertext}<extra></extra>",
-                             textposition="top center", textfont=dict(size=10, color=CONTACT),
-                             name=label, showlegend=True, **common), r)
-        else:
-            add(go.Scatter(**_xyz(p, 2), mode="markers+text", marker=marker, text=labels, hovertext=text,
-                           hovertemplate="%{hovertext}<extra></extra>", textposition="top center",
-                           name=label, showlegend=True, **common), r)
-        # the gripper: finger boxes and palm at the jaw pose
-        if jaws is not None:
-            jv, jf = jaws
-            add(go.Mesh3d(**_xyz(jv[r], 3), i=jf[:, 0].astype(np.int32), j=jf[:, 1].astype(np.int32),
-                          k=jf[:, 2].astype(np.int32), color=JAW, opacity=0.45, flatshading=True,
-                          hovertext=["gripper<br>" + "<br>".join(hover_rows[r])] * len(jv[r]),
-                          hovertemplate="%{hovertext}<extra></extra>", name="gripper", showlegend=False,
-                          **common), r)
-        # normals, outward
-        seg = np.stack([p, p + 1.35 * length * nr], axis=1)
-        line = _gaps(seg)
-        tr = (go.Scatter3d if d == 3 else go.Scatter)(
-            **_xyz(line, d), mode="lines", line=dict(color="#333333", width=3 if d == 3 else 1.5),
-            hoverinfo="skip", name="normals", showlegend=False, **common)
-        add(tr, r)
-        # friction pyramids
-        edges = unit(reference.cone_edges(nr, float(mu), int(num_edges)))  # (n, m, d), inward
-        if d == 3:
-            rim = p[:, None] - length * edges  # outside, mirrored through the contact
-            m = rim.shape[1]
-            verts = np.concatenate([p[:, None], rim], axis=1).reshape(-1, 3)  # (n (m + 1), 3)
-            base = (np.arange(n) * (m + 1))[:, None]
-            j = np.arange(m)[None]
-            tri_i = np.broadcast_to(base, (n, m)).reshape(-1)
-            tri_j = (base + 1 + j).reshape(-1)
-            tri_k = (base + 1 + (j + 1) % m).reshape(-1)
-            add(go.Mesh3d(**_xyz(verts, 3), i=tri_i.astype(np.int32), j=tri_j.astype(np.int32),
-                          k=tri_k.astype(np.int32), color=CONE, opacity=0.35, hoverinfo="skip",
-                          name="friction pyramids", showlegend=False, **common), r)
-            ring = np.concatenate([rim, rim[:, :1]], axis=1)
-            spokes = np.stack([np.broadcast_to(p[:, None], rim.shape), rim], axis=2).reshape(-1, 2, 3)
-            lines = np.concatenate([_gaps(ring), _gaps(spokes)])
-            add(go.Scatter3d(**_xyz(lines, 3), mode="lines", line=dict(color=CONE, width=2),
-                             hoverinfo="skip", name="pyramid edges", showlegend=False, **common), r)
-        else:
-            wedge = np.stack([p, p + length * edges[:, 0], p + length * edges[:, 1], p], axis=1)
-            add(go.Scatter(**_xyz(_gaps(wedge), 2), mode="lines", fill="toself", fillcolor="rgba(232,131,58,0.45)",
-                           line=dict(color=CONE, width=1), hoverinfo="skip", name="friction cones",
-                           showlegend=False, **common), r)
-        # central axis
-        axis = reference.balancing_axis(p, nr, mu=mu, num_edges=num_edges, contact=contact, torsion=torsion) \
-            if central_axis else None
-        if axis is not None:
-            a0, u = axis
-            mid = a0 + float((centre - a0) @ u) * u
-            seg = np.stack([mid - 0.75 * extent * u, mid + 0.75 * extent * u])
-            hover = ("central axis \u0394<sub>r</sub>* of contacts 2..n at the quality LP's optimum"
-                     "<br>" + hover_rows[r][0])
-            tr = (go.Scatter3d if d == 3 else go.Scatter)(
-                **_xyz(seg, d), mode="lines", line=dict(color=AXIS, width=4 if d == 3 else 2, dash="dash"),
-                hovertext=[hover, hover], hovertemplate="%{hovertext}<extra></extra>", name="central axis",
-                showlegend=False, **common)
-            add(tr, r)
-        # contact paths (optimizer results)
-        if paths is not None:
-            path, source = paths
-            track = np.transpose(path[r], (1, 0, 2))  # (n, S, d)
-            steps = track.shape[1]
-            what = ("start to end" if source == "initial_points" else
-                    f"{steps} positions from the start to the last step (column {source!r}; the grasp drawn is "
-                    "the best iterate)")
-            tr = (go.Scatter3d if d == 3 else go.Scatter)(
-                **_xyz(_gaps(track), d), mode="lines", line=dict(color=PATH, width=3 if d == 3 else 1.5),
-                hovertext=[f"path of a contact, {what}<br>{hover_rows[r][0]}"] * (n * (steps + 1)),
-                hovertemplate="%{hovertext}<extra></extra>", name="contact paths", showlegend=False, **common)
-            add(tr, r)
-            starts = track[:, 0]
-            tr = (go.Scatter3d if d == 3 else go.Scatter)(
-                **_xyz(starts, d), mode="markers", marker=dict(color=PATH, size=4 if d == 3 else 7, symbol="circle-open"),
-                hovertext=[f"start of contact c_{j + 1}<br>{hover_rows[r][0]}" for j in range(n)],
-                hovertemplate="%{hovertext}<extra></extra>", name="starts", showlegend=False, **common)
-            add(tr, r)
 
-    # the table ----------------------------------------------------------------------------------
+def _draw_cones(canvas: _Canvas, r: int, p, nr, *, length: float, mu: float, num_edges: int) -> None:
+    """The friction pyramids of contacts ``p`` ``(n, 3)`` (faces and edges), or the friction cones
+    of 2D contacts (wedges), mirrored outside through each contact."""
+    n, d = p.shape
+    group = dict(legendgroup=f"grasp {r}")
+    edges = unit(reference.cone_edges(nr, float(mu), int(num_edges)))  # (n, m, d), inward
+    if d == 2:
+        wedge = np.stack([p, p + length * edges[:, 0], p + length * edges[:, 1], p], axis=1)
+        canvas.add(go.Scatter(**_xyz(_gaps(wedge), 2), mode="lines", fill="toself", fillcolor="rgba(232,131,58,0.45)",
+                              line=dict(color=CONE, width=1), hoverinfo="skip", name="friction cones",
+                              showlegend=False, **group), r)
+        return
+    rim = p[:, None] - length * edges  # outside, mirrored through the contact
+    m = rim.shape[1]
+    verts = np.concatenate([p[:, None], rim], axis=1).reshape(-1, 3)  # (n (m + 1), 3)
+    base = (np.arange(n) * (m + 1))[:, None]
+    j = np.arange(m)[None]
+    tri_i = np.broadcast_to(base, (n, m)).reshape(-1)
+    tri_j = (base + 1 + j).reshape(-1)
+    tri_k = (base + 1 + (j + 1) % m).reshape(-1)
+    canvas.add(go.Mesh3d(**_xyz(verts, 3), i=tri_i.astype(np.int32), j=tri_j.astype(np.int32),
+                         k=tri_k.astype(np.int32), color=CONE, opacity=0.35, hoverinfo="skip",
+                         name="friction pyramids", showlegend=False, **group), r)
+    ring = np.concatenate([rim, rim[:, :1]], axis=1)
+    spokes = np.stack([np.broadcast_to(p[:, None], rim.shape), rim], axis=2).reshape(-1, 2, 3)
+    lines = np.concatenate([_gaps(ring), _gaps(spokes)])
+    canvas.add(go.Scatter3d(**_xyz(lines, 3), mode="lines", line=dict(color=CONE, width=2),
+                            hoverinfo="skip", name="pyramid edges", showlegend=False, **group), r)
+
+
+def _draw_axis(canvas: _Canvas, r: int, p, nr, heading: str, centre, extent: float, settings: dict) -> None:
+    """The balancing central axis of grasp ``r`` (:func:`grasp_jax.reference.balancing_axis` with
+    ``settings``), a segment through the point nearest the scene's ``centre``; none where it has none."""
+    axis = reference.balancing_axis(p, nr, **settings)
+    if axis is None:
+        return
+    d = p.shape[-1]
+    a0, u = axis
+    mid = a0 + float((centre - a0) @ u) * u
+    seg = np.stack([mid - 0.75 * extent * u, mid + 0.75 * extent * u])
+    hover = "central axis \u0394<sub>r</sub>* of contacts 2..n at the quality LP's optimum" "<br>" + heading
+    canvas.add(_line(d)(**_xyz(seg, d), mode="lines", line=dict(color=AXIS, width=4 if d == 3 else 2, dash="dash"),
+                        hovertext=[hover, hover], hovertemplate="%{hovertext}<extra></extra>", name="central axis",
+                        showlegend=False, legendgroup=f"grasp {r}"), r)
+
+
+def _draw_path(canvas: _Canvas, r: int, paths, heading: str) -> None:
+    """The contact paths of grasp ``r`` (optimizer results) and their starts."""
+    path, source = paths
+    track = np.transpose(path[r], (1, 0, 2))  # (n, S, d)
+    n, steps, d = track.shape
+    group = dict(legendgroup=f"grasp {r}")
+    what = ("start to end" if source == "initial_points" else
+            f"{steps} positions from the start to the last step (column {source!r}; the grasp drawn is "
+            "the best iterate)")
+    canvas.add(_line(d)(**_xyz(_gaps(track), d), mode="lines", line=dict(color=PATH, width=3 if d == 3 else 1.5),
+                        hovertext=[f"path of a contact, {what}<br>{heading}"] * (n * (steps + 1)),
+                        hovertemplate="%{hovertext}<extra></extra>", name="contact paths", showlegend=False,
+                        **group), r)
+    canvas.add(_line(d)(**_xyz(track[:, 0], d), mode="markers",
+                        marker=dict(color=PATH, size=4 if d == 3 else 7, symbol="circle-open"),
+                        hovertext=[f"start of contact c_{j + 1}<br>{heading}" for j in range(n)],
+                        hovertemplate="%{hovertext}<extra></extra>", name="starts", showlegend=False, **group), r)
+
+
+def _draw_table(canvas: _Canvas, shown: ShownGrasps) -> None:
+    """The table of the drawn grasps: rank, index, verdict, Q and every scalar column."""
+    k, cols = len(shown), shown.columns
     header = ["rank", "grasp", "verdict", "Q"]
     cells = [list(range(1, k + 1)), [int(i) for i in shown.index], [_verdict(cols, r) for r in range(k)],
              [f"{float(q):.4f}" for q in cols["quality"]] if "quality" in cols else ["-"] * k]
@@ -358,40 +405,46 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
             continue
         header.append(_html.escape(name))
         cells.append([_format_value(name, x) for x in a])
-    add(go.Table(header=dict(values=[f"<b>{h}</b>" for h in header], fill_color="#e4e9f0", align="left",
-                             font=dict(size=11)),
-                 cells=dict(values=cells, align="left", font=dict(size=11), height=22),
-                 columnwidth=[34, 60, 110, 56] + [70] * (len(header) - 4)), -1, row=1, col=2)
+    canvas.add(go.Table(header=dict(values=[f"<b>{h}</b>" for h in header], fill_color="#e4e9f0", align="left",
+                                    font=dict(size=11)),
+                        cells=dict(values=cells, align="left", font=dict(size=11), height=22),
+                        columnwidth=[34, 60, 110, 56] + [70] * (len(header) - 4)), -1, row=1, col=2)
 
-    # Q histogram and the drawn grasps' Q --------------------------------------------------------
+
+def _draw_quality(canvas: _Canvas, shown: ShownGrasps, hover_rows: list, series) -> None:
+    """The file's Q histogram (where ``shown`` has one), a line at each drawn grasp's Q, and each
+    drawn grasp's Q against step (where ``series``)."""
+    k, cols = len(shown), shown.columns
     qs = np.asarray(cols["quality"], float) if "quality" in cols else None
+    top_count = 1.0
     if shown.histogram is not None:
         counts, edges_h = shown.histogram
         last = int(np.max(np.flatnonzero(counts))) + 1 if counts.any() else len(counts)
         centres = 0.5 * (edges_h[:-1] + edges_h[1:])[:last]
-        add(go.Bar(x=centres, y=counts[:last], width=float(edges_h[1] - edges_h[0]), marker_color="#8ea3bf",
-                   name="Q histogram", showlegend=False,
-                   hovertemplate="Q %{x:.3f}: %{y} grasps<extra></extra>"), -1, row=2, col=2)
+        canvas.add(go.Bar(x=centres, y=counts[:last], width=float(edges_h[1] - edges_h[0]), marker_color="#8ea3bf",
+                          name="Q histogram", showlegend=False,
+                          hovertemplate="Q %{x:.3f}: %{y} grasps<extra></extra>"), -1, row=2, col=2)
         top_count = float(counts.max())
-    else:
-        top_count = 1.0
     if qs is not None:
         for r in range(k):
-            add(go.Scatter(x=[qs[r], qs[r]], y=[0, top_count], mode="lines", line=dict(color=FIRST, width=1.5),
-                           hovertext=[hover_rows[r][0]] * 2, hovertemplate="%{hovertext}<br>Q %{x:.4f}<extra></extra>",
-                           legendgroup=f"grasp {r}", showlegend=False), r, row=2, col=2)
+            canvas.add(go.Scatter(x=[qs[r], qs[r]], y=[0, top_count], mode="lines", line=dict(color=FIRST, width=1.5),
+                                  hovertext=[hover_rows[r][0]] * 2,
+                                  hovertemplate="%{hovertext}<br>Q %{x:.4f}<extra></extra>",
+                                  legendgroup=f"grasp {r}", showlegend=False), r, row=2, col=2)
     if series is not None:
         steps = np.arange(1, series.shape[1] + 1)
         for r in range(k):
-            add(go.Scatter(x=steps, y=series[r], mode="lines", line=dict(width=1.5),
-                           hovertext=[hover_rows[r][0]] * len(steps),
-                           hovertemplate="%{hovertext}<br>step %{x}: Q %{y:.4f}<extra></extra>",
-                           legendgroup=f"grasp {r}", showlegend=False), r, row=3, col=2)
+            canvas.add(go.Scatter(x=steps, y=series[r], mode="lines", line=dict(width=1.5),
+                                  hovertext=[hover_rows[r][0]] * len(steps),
+                                  hovertemplate="%{hovertext}<br>step %{x}: Q %{y:.4f}<extra></extra>",
+                                  legendgroup=f"grasp {r}", showlegend=False), r, row=3, col=2)
 
-    # layout -------------------------------------------------------------------------------------
+
+def _set_axes(fig, shown: ShownGrasps, d: int, centre, extent: float, with_series: bool) -> None:
+    """Axis titles of the side plots; the scene a cube (3D) or equal axes (2D) around ``centre``."""
     fig.update_xaxes(title_text="Q", row=2, col=2)
     fig.update_yaxes(title_text="grasps" if shown.histogram is not None else "", row=2, col=2)
-    if series is not None:
+    if with_series:
         fig.update_xaxes(title_text="step", row=3, col=2)
         fig.update_yaxes(title_text="Q", row=3, col=2)
     half = 0.55 * extent
@@ -406,7 +459,12 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
         fig.update_yaxes(range=[centre[1] - half, centre[1] + half], row=1, col=1, scaleanchor="x",
                          scaleratio=1, showgrid=False, zeroline=False)
 
-    # the selector: all grasps, or one ----------------------------------------------------------
+
+def _add_menu(canvas: _Canvas, shown: ShownGrasps, d: int, title: str | None, note: str | None) -> None:
+    """The selector (all grasps, or one; the best first), the title and the layout."""
+    fig, owner, k, cols = canvas.fig, canvas.owner, len(shown), shown.columns
+    qs = np.asarray(cols["quality"], float) if "quality" in cols else None
+
     def visible(rank):
         return [True if o < 0 or rank is None or o == rank else "legendonly" for o in owner]
 
@@ -434,4 +492,3 @@ def grasp_figure(geometry, shown: ShownGrasps, *, mu: float, num_edges: int = 8,
         margin=dict(l=10, r=10, t=90, b=40), height=820, template="plotly_white",
         hoverlabel=dict(align="left", font=dict(size=11)),
     )
-    return fig
