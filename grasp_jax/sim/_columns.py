@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..grippers import ParallelJaw
 from ..storage import PARQUET_KEY, ResultFile, check_output_path, write_atomically
 from ..storage import metadata as stamp
+from ._jaws import DEFAULT_GRIPPER, body_gripper, simulate_jaws
 from ._protocol import DIRECTIONS, Protocol, SimResult
 
 #: The per-direction columns, in the order of :data:`DIRECTIONS`.
@@ -77,9 +79,6 @@ def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | 
         ValueError: the file lacks a needed column (one sentence naming them), or as
             :func:`~grasp_jax.sim.simulate_jaws`; nothing is written then.
     """
-    from ..grippers import ParallelJaw
-    from ._jaws import DEFAULT_GRIPPER, simulate_jaws
-
     source = ResultFile(path)
     missing = [c for c in JAW_COLUMNS if c not in source.fields]
     if missing:
@@ -98,7 +97,7 @@ def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | 
     cols = sim_columns(result)
     meta = dict(source.metadata)
     meta["sim"] = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name,
-                        gripper=gripper.to_dict(), directions=list(DIRECTIONS))
+                        gripper=body_gripper(gripper).to_dict(), directions=list(DIRECTIONS))
     if source.format == "npz":
         arrays.update(cols)
         _write_npz(target, arrays, meta)

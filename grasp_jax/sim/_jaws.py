@@ -24,13 +24,14 @@ from ._scene import gripper_geom_defaults, object_assets, object_body, option
 DEFAULT_GRIPPER = ParallelJaw.scaled(0.1)
 
 
-def _body_gripper(gripper: ParallelJaw) -> ParallelJaw:
+def body_gripper(gripper: ParallelJaw) -> ParallelJaw:
+    """The gripper as simulated: ``gripper``, or ``ParallelJaw.scaled`` where it has no body."""
     return gripper if gripper.has_body else ParallelJaw.scaled(gripper.max_width, gripper.min_width)
 
 
 def jaw_xml(obj, gripper: ParallelJaw, protocol: Protocol) -> str:
     """The MJCF of the object and the jaw gripper (fingers open at ``max_width``)."""
-    g = _body_gripper(gripper)
+    g = body_gripper(gripper)
     t, b, length = g.finger_size
     z = g.tip_depth - 0.5 * length
     half = 0.5 * g.max_width
@@ -127,7 +128,7 @@ def simulate_jaws(mesh, centers, axes, approaches, widths, *, gripper: ParallelJ
         raise ValueError("approaches are needed: the gripper's body is simulated")
     obj = sim_object(mesh, mass=protocol.mass, params=protocol.decomposition)
     xml = jaw_xml(obj, gripper, protocol)
-    init = (xml, _body_gripper(gripper), protocol, protocol.force_magnitude, int(seed))
+    init = (xml, body_gripper(gripper), protocol, protocol.force_magnitude, int(seed))
     rows = run_batched(JawSim, init, (centers, axes, approaches, widths), workers=workers,
                        progress=progress, desc="simulating jaw grasps")
     return SimResult.from_rows(rows)
