@@ -93,27 +93,30 @@ def _take(g, rows):
 def valid_grasps(obj, gripper, protocol, args):
     """Antipodal grasps whose gripper body is clear of the mesh (the sampler's collision check),
     in rounds of ``--round`` candidates until ``--num`` are valid or ``--rounds`` are drawn:
-    ``(grasps, SimResult, candidates)`` of the valid ones (at most ``--num``)."""
+    ``(grasps, SimResult, counts)`` of the valid ones (at most ``--num``); ``counts``: candidates,
+    two contacts and a clear body (``JawStatus.OK``), simulated in penetration."""
     import numpy as np
 
     from grasp_jax import grippers, sim
 
-    kept, results, candidates = [], [], 0
+    kept, results, counts = [], [], {"candidates": 0, "jaw_ok": 0, "sim_penetration": 0}
     for r in range(args.rounds):
         g = grippers.antipodal_grasps(obj, args.round, mu=args.sample_mu, gripper=gripper,
                                       seed=args.seed + 1000 * r, collision=True)
-        candidates += len(g)
+        counts["candidates"] += len(g)
         g = _take(g, g.status == grippers.JawStatus.OK)
+        counts["jaw_ok"] += len(g)
         res = sim.simulate_jaws(obj, g.centers, g.axes, g.approaches, g.widths, gripper=gripper,
                                 protocol=protocol, seed=args.seed, workers=args.workers, progress=args.progress)
         ok = res.status != sim.SimStatus.PENETRATION
+        counts["sim_penetration"] += int((~ok).sum())
         kept.append(_take(g, ok))
         results.append(sim.SimResult(*(a[ok] for a in res)))
         if sum(len(x) for x in kept) >= args.num:
             break
     g = type(kept[0])(*(np.concatenate([getattr(x, f) for x in kept])[:args.num] for f in kept[0]._fields))
     res = sim.SimResult(*(a[:args.num] for a in sim.SimResult.concatenate(results)))
-    return g, res, candidates
+    return g, res, counts
 
 
 def labels(obj, g, gripper, com, args):
@@ -245,7 +248,7 @@ def main(argv=None):
             warnings.simplefilter("ignore")
             obj = objects.load(path)
         t = time.perf_counter()
-        g, res, candidates = valid_grasps(obj, gripper, protocol, args)
+        g, res, drawn = valid_grasps(obj, gripper, protocol, args)
         sim_s = time.perf_counter() - t
         t = time.perf_counter()
         com = sim.sim_object(obj, mass=protocol.mass, params=protocol.decomposition).com
@@ -254,7 +257,7 @@ def main(argv=None):
         hit = np.asarray(res.success, bool)
         per_object[name] = scores(values, hit)
         base[name] = float(hit.mean())
-        counts[name] = {"candidates": candidates, "valid": len(hit), "held": int(hit.sum()),
+        counts[name] = {**drawn, "valid": len(hit), "held": int(hit.sum()),
                         "status": {s.name: int(np.sum(res.status == s)) for s in sim.SimStatus},
                         "directions_held": res.directions.mean(axis=0).tolist(),
                         "simulation_s": sim_s, "labels_s": label_s}
