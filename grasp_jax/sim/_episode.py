@@ -148,8 +148,9 @@ def run_episode(scene: Scene, protocol: Protocol, controls, force: float, frame:
     ``controls`` are the actuators' controls at the pre-grasp, then at each later waypoint (the
     grasp, the squeeze): they move linearly from the pre-grasp to the next over ``close_time``,
     then to each further one over ``squeeze_time``, and stay at the last for ``squeeze_time``. The
-    forces pull along the columns of ``frame`` (the object's axes; default the world's). With ``Protocol.reference == "start"`` the object's motion is measured from
-    its pose before the gripper closes, so an object that the closing turns or pushes away fails."""
+    forces pull along the columns of ``frame`` (the object's axes; default the world's). With
+    ``Protocol.reference == "start"`` the object's motion is measured from its pose before the
+    gripper closes, so an object that the closing turns or pushes away fails."""
     mj, m, d = scene.mj, scene.model, scene.data
     nan = np.full(6, np.nan)
     controls = [np.asarray(c, float) for c in controls]

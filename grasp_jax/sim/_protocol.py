@@ -4,8 +4,7 @@ After DexGraspBench: no gravity; the gripper opens at its pre-grasp pose, closes
 external force pulls the object along +x, -x, +y, -y, +z, -z (the object's frame) in turn, each
 from the state after the squeeze. A direction holds when the object's centre of mass moves less
 than ``max_displacement`` and the object turns less than ``max_rotation`` (measured from its pose
-before the gripper closed, by default); a grasp succeeds when
-every direction holds.
+before the gripper closed, by default); a grasp succeeds when every direction holds.
 """
 
 from __future__ import annotations
