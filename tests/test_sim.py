@@ -31,7 +31,8 @@ def box():
 def _poses(centers, axes, approaches, widths):
     k = len(centers)
     return (np.asarray(centers, float).reshape(k, 3), np.broadcast_to(np.asarray(axes, float), (k, 3)),
-            np.broadcast_to(np.asarray(approaches, float), (k, 3)), np.broadcast_to(np.asarray(widths, float), (k,)))
+            np.broadcast_to(np.asarray(approaches, float), (k, 3)),
+            np.broadcast_to(np.asarray(widths, float), (k,)))
 
 
 def test_centred_grasp_holds_and_beside_fails(box):

@@ -3,9 +3,9 @@
 The object is the convex decomposition of its mesh (cached per mesh), free and weightless; the
 gripper closes, squeezes, and a force pulls the object along each of six directions in turn
 (:class:`Protocol`). :func:`simulate_jaws` checks parallel-jaw grasps of :mod:`grasp_jax.grippers`
-and :func:`simulate_hand` the hand grasps of :mod:`grasp_jax.hands`, over all cores; :func:`add_sim_columns` writes the outcome beside the labels of a result file.
-Nothing here imports JAX: the simulation needs MuJoCo, NumPy and trimesh
-(``pip install 'grasp_jax[sim]'``).
+and :func:`simulate_hand` the hand grasps of :mod:`grasp_jax.hands`, over all cores;
+:func:`add_sim_columns` writes the outcome beside the labels of a result file. Nothing here imports
+JAX: the simulation needs MuJoCo, NumPy and trimesh (``pip install 'grasp_jax[sim]'``).
 """
 
 from __future__ import annotations

@@ -168,7 +168,8 @@ def run_episode(scene: Scene, protocol: Protocol, controls, force: float, frame:
     if scene.touching() < 2:
         return SimStatus.NO_CONTACT, np.zeros(6, bool), nan, nan
     mj.mj_getState(m, d, scene.state, scene.state_spec)
-    held, disp, rot, bad = hold(scene, protocol, force, start if protocol.reference == "start" else None, frame)
+    reference = start if protocol.reference == "start" else None
+    held, disp, rot, bad = hold(scene, protocol, force, reference, frame)
     if bad:
         return SimStatus.UNSTABLE, np.zeros(6, bool), disp, rot
     return SimStatus.OK, held, disp, rot

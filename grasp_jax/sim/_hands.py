@@ -99,7 +99,8 @@ def _rotation(q: np.ndarray) -> np.ndarray:
 class HandSim:
     """A worker's hand scene: built once, then one grasp after another (:meth:`run`)."""
 
-    def __init__(self, xml: str, bodies: list[str], joint_names: tuple, protocol: Protocol, force: float, seed: int):
+    def __init__(self, xml: str, bodies: list[str], joint_names: tuple, protocol: Protocol, force: float,
+                 seed: int):
         self.scene = Scene(xml, bodies)
         self.protocol, self.force, self.seed = protocol, force, seed
         m, mj = self.scene.model, self.scene.mj
@@ -153,7 +154,8 @@ def simulate_hand(hand, mesh, result, *, protocol: Protocol | None = None, seed:
     obj = sim_object(mesh, mass=protocol.mass, params=protocol.decomposition)
     xml, bodies = hand_xml(hand, obj, protocol)
     init = (xml, bodies, tuple(hand.joint_names), protocol, protocol.force_magnitude, int(seed))
-    out = run_batched(HandSim, init, arrays, workers=workers, progress=progress, desc="simulating hand grasps")
+    out = run_batched(HandSim, init, arrays, workers=workers, progress=progress,
+                      desc="simulating hand grasps")
     return SimResult.from_rows(out)
 
 
@@ -166,7 +168,8 @@ def _arrays(hand, result, protocol: Protocol) -> tuple:
     squeeze = getattr(result, "squeeze", None)
     squeeze = grasp + protocol.squeeze * (grasp - pregrasp) if squeeze is None else np.asarray(squeeze, float)
     for name, a, shape in (("position", position, (s, 3)), ("quaternion", quaternion, (s, 4)),
-                           ("joints", grasp, (s, j)), ("pregrasp", pregrasp, (s, j)), ("squeeze", squeeze, (s, j))):
+                           ("joints", grasp, (s, j)), ("pregrasp", pregrasp, (s, j)),
+                           ("squeeze", squeeze, (s, j))):
         if a.shape != shape:
             raise ValueError(f"result.{name} must have shape {shape} for hand {hand.name!r}; got {a.shape}")
         if not np.isfinite(a).all():

@@ -1,11 +1,12 @@
 """The parallel-jaw gripper of :mod:`grasp_jax.grippers` in MuJoCo, and :func:`simulate_jaws`.
 
-The gripper is a mocap body (the palm) placed at each grasp's pose, with two fingers on slide
-joints along the closing axis, each driven by a position actuator whose force saturates at
+The gripper is a mocap body (the palm) placed at each grasp's pose, with two fingers on slide joints
+along the closing axis, each driven by a position actuator whose force saturates at
 ``Protocol.jaw_force``; an equality constraint couples the two jaws (as the linkage of a Franka or
-Robotiq gripper does), so the object is held centred between them. The bodies are the boxes of :func:`grasp_jax.grippers.gripper_boxes`
-(``ParallelJaw.scaled`` where the gripper has none). Each grasp starts with the jaws at its opening
-``width``; the targets then move to the closed position (the jaws stop on the object and squeeze).
+Robotiq gripper does), so the object is held centred between them. The bodies are the boxes of
+:func:`grasp_jax.grippers.gripper_boxes` (``ParallelJaw.scaled`` where the gripper has none). Each
+grasp starts with the jaws at its opening ``width``; the targets then move to the closed position
+(the jaws stop on the object and squeeze).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ def jaw_xml(obj, gripper: ParallelJaw, protocol: Protocol) -> str:
     for i, sign in ((0, -1.0), (1, 1.0)):
         fingers.append(
             f'<body name="finger{i}" pos="{sign * (half + 0.5 * t):.9g} 0 {z:.9g}">'
-            f'<joint name="jaw{i}" type="slide" axis="{-sign:g} 0 0" range="0 {travel:.9g}" damping="{damping:.9g}"/>'
+            f'<joint name="jaw{i}" type="slide" axis="{-sign:g} 0 0" range="0 {travel:.9g}" '
+            f'damping="{damping:.9g}"/>'
             f'<geom class="gripper" type="box" size="{0.5 * t:.9g} {0.5 * b:.9g} {0.5 * length:.9g}" '
             f'mass="{fm:.9g}"/></body>')
     palm = ""

@@ -3,8 +3,9 @@
 MuJoCo collides each mesh geom as its convex hull, so a concave object is given as the convex parts
 of a decomposition (CoACD by default, V-HACD through ``vhacdx`` as the faster, coarser choice).
 CoACD remeshes its input first, which inflates the parts by up to a voxel; each part is therefore
-replaced by the convex hull of the mesh's own vertices within ``fit`` of it. A decomposition is cached per mesh in :func:`cache_dir` under a key made of a hash of the vertices
-and faces and of the parameters. The mass is spread uniformly over the union of the parts.
+replaced by the convex hull of the mesh's own vertices within ``fit`` of it. A decomposition is
+cached per mesh in :func:`cache_dir` under a key made of a hash of the vertices and faces and of the
+parameters. The mass is spread uniformly over the union of the parts.
 """
 
 from __future__ import annotations
@@ -118,7 +119,8 @@ def _run(vertices, faces, params: Decomposition) -> list:
 
         parts = vhacdx.compute_vhacd(
             np.asarray(vertices, np.float64), np.asarray(faces, np.uint32),
-            maxConvexHulls=params.max_parts if params.max_parts > 0 else 32, resolution=params.resolution * 100,
+            maxConvexHulls=params.max_parts if params.max_parts > 0 else 32,
+            resolution=params.resolution * 100,
             maxNumVerticesPerCH=params.max_vertices, asyncACD=False)
     return [(np.asarray(v, np.float64), np.asarray(f, np.int32)) for v, f in parts]
 
@@ -183,8 +185,8 @@ def decompose(mesh, params: Decomposition | None = None, *, cache: bool = True) 
     except (RuntimeError, ValueError) as e:
         raise ValueError(f"the mesh cannot be decomposed into convex parts ({params.method}: {e})") from None
     if not hulls:
-        raise ValueError(f"the mesh cannot be decomposed into convex parts: {params.method} gave no part with "
-                         "volume (a flat or degenerate mesh?)")
+        raise ValueError(f"the mesh cannot be decomposed into convex parts: {params.method} gave no part "
+                         "with volume (a flat or degenerate mesh?)")
     parts = [(np.asarray(h.vertices, np.float64), np.asarray(h.faces, np.int32)) for h in hulls]
     if cache:
         arrays = {"count": np.int64(len(parts))}
@@ -195,7 +197,8 @@ def decompose(mesh, params: Decomposition | None = None, *, cache: bool = True) 
     return parts
 
 
-def sim_object(mesh, *, mass: float = MASS, params: Decomposition | None = None, cache: bool = True) -> SimObject:
+def sim_object(mesh, *, mass: float = MASS, params: Decomposition | None = None,
+               cache: bool = True) -> SimObject:
     """The :class:`SimObject` of a mesh: :func:`decompose`, then ``mass`` kg spread uniformly over
     the parts (their overlaps counted twice, a small error for a decomposition's thin overlaps).
 

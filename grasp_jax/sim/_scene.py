@@ -42,7 +42,8 @@ def object_body(obj: SimObject, protocol: Protocol) -> str:
     i = obj.inertia
     full = _floats([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]])
     return (f'<body name="object"><freejoint/>'
-            f'<inertial pos="{_floats(obj.com)}" mass="{obj.mass:.9g}" fullinertia="{full}"/>\n{geoms}</body>')
+            f'<inertial pos="{_floats(obj.com)}" mass="{obj.mass:.9g}" fullinertia="{full}"/>\n'
+            f'{geoms}</body>')
 
 
 def gripper_geom_defaults(protocol: Protocol) -> str:
