@@ -163,32 +163,12 @@ class _Sampling:
 
 
 def run(
-    obj,
-    num: int,
-    fingers: int,
-    *,
-    mu: float = DEFAULT_MU,
-    num_edges: int = 8,
-    seed: int = 0,
-    scheme: str = "uniform",
-    torque_test: str = "exact",
-    chunk: int | None = None,
-    epsilon: bool = False,
-    origin=None,
-    torque_scale: float | None = None,
-    out=None,
-    progress: bool = False,
-    top: int = DEFAULT_TOP,
-    first_contact: int | None = None,
-    distributed: bool = False,
-    object_spec: str | None = None,
-    object_holes=None,
-    contact: str = "hard",
-    torsion: float | None = None,
-    gripper=None,
-    collision: bool = False,
-    critical: bool | None = None,
-    robust: RobustLabels | None = None,
+    obj, num: int, fingers: int, *, mu: float = DEFAULT_MU, num_edges: int = 8, seed: int = 0, scheme: str = "uniform",
+    torque_test: str = "exact", chunk: int | None = None, epsilon: bool = False, origin=None,
+    torque_scale: float | None = None, out=None, progress: bool = False, top: int = DEFAULT_TOP,
+    first_contact: int | None = None, distributed: bool = False, object_spec: str | None = None, object_holes=None,
+    contact: str = "hard", torsion: float | None = None, gripper=None, collision: bool = False,
+    critical: bool | None = None, robust: RobustLabels | None = None,
 ) -> PipelineSummary:
     """Sample ``num`` random grasps of ``obj`` and score them, one chunk at a time.
 
