@@ -1,11 +1,9 @@
 """Grasp datasets over many objects: one configuration, one Parquet dataset partitioned by object.
 
 :func:`build` runs the sampling pipeline (:func:`grasp_jax.pipeline.run`, with robust labels
-where asked) on every object of a folder of meshes or of a manifest file, and writes::
-
-    DIR/_manifest.json                configuration, versions, per-object status and counts
-    DIR/object=<name>/part.parquet    the object's grasps (written atomically)
-    DIR/_objects/<name>.json          the object's status record (written atomically)
+where asked), or a hand's synthesis (:func:`grasp_jax.hands.synthesize`), on every object of a
+folder of meshes or of a manifest file, into ``DIR/object=<name>/part.parquet`` beside
+``DIR/_manifest.json`` and the records ``DIR/_objects/<name>.json`` (``grasp_jax._dataset_folder``).
 
 ``DIR`` is a hive-partitioned Parquet dataset that pyarrow, pandas, polars and DuckDB read
 (entries starting with ``_`` or ``.`` are not data). An object is done when its part and a
@@ -14,35 +12,36 @@ configuration stops with an error. ``shard=(i, N)`` does objects ``i, i + N, ...
 list (:func:`shard_from_environment` reads SLURM's array variables); shards write into one ``DIR``
 and each rewrites ``_manifest.json`` from all records, under a lock, every :data:`MANIFEST_EVERY` s.
 """
-
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import os
 import re
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import _dataset_folder as folder
+from ._dataset_folder import (  # noqa: F401 - public here
+    FIGURE,
+    MANIFEST,
+    MANIFEST_EVERY,
+    PART,
+    RECORDS,
+    DatasetError,
+    part_path,
+    versions,
+)
+
 #: Mesh files a folder of objects is made of (any format trimesh reads; by suffix, lower case).
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae", ".3mf")
-MANIFEST = "_manifest.json"  # "_": readers of the Parquet dataset skip it (as Spark's _SUCCESS)
-RECORDS = "_objects"
-PART = "part.parquet"
-FIGURE = "_summary.png"  # "_": beside the parts, skipped by the dataset's readers
 #: Settings that must match for a run to add to an existing dataset (the last three only where set:
 #: a dataset of free contacts written before they existed reads the same).
 CONFIG_KEYS = ("fingers", "num", "seed", "scheme", "mu", "edges", "torque_test", "contact", "torsion", "robust",
                "gripper", "collision", "critical")
-
-
-class DatasetError(ValueError):
-    """A dataset that cannot be built as asked (one sentence)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,128 +140,6 @@ def shard_from_environment(environ=None) -> tuple[int, int] | None:
     return task, count
 
 
-def versions() -> dict:
-    """Versions of grasp_jax, Python and the libraries the results depend on."""
-    from importlib import metadata
-
-    from . import __version__
-
-    out = {"grasp_jax": __version__, "python": sys.version.split()[0]}
-    for name in ("jax", "jaxlib", "numpy", "trimesh", "pyarrow"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# Files
-
-
-def _write_json(path: Path, data: dict) -> None:
-    """``data`` to ``path`` atomically (a temporary file renamed into place)."""
-    from .storage import fsync_dir, write_atomically
-
-    write_atomically(path, lambda f: f.write(json.dumps(data, indent=1, default=str) + "\n"), what="dataset file")
-    fsync_dir(path.parent)
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"cannot read {str(path)!r} ({exc}); remove it to start that part again") from None
-
-
-@contextlib.contextmanager
-def _locked(directory: Path):
-    """An exclusive lock on ``directory/.lock`` (``fcntl.flock``; none where it is missing)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with open(directory / ".lock", "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
-
-
-def part_path(out: Path, name: str) -> Path:
-    """Where the grasps of object ``name`` go: ``out/object=<name>/part.parquet``."""
-    return Path(out) / f"object={name}" / PART
-
-
-def _records(out: Path) -> dict:
-    folder = out / RECORDS
-    if not folder.is_dir():
-        return {}
-    found = {}
-    for f in sorted(folder.glob("*.json")):
-        record = _read_json(f)
-        if record is not None:
-            found[record.get("name", f.stem)] = record
-    return found
-
-
-def _manifest(out: Path, config: dict) -> dict:
-    records = _records(out)
-    done = sum(r.get("status") == "done" for r in records.values())
-    return {
-        "format": "grasp_jax dataset 1",
-        "config": config,
-        "versions": versions(),
-        "updated": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "objects_done": done,
-        "objects_failed": sum(r.get("status") == "failed" for r in records.values()),
-        "grasps": int(sum(r.get("num", 0) for r in records.values() if r.get("status") == "done")),
-        "objects": records,
-    }
-
-
-def _start(out: Path, config: dict) -> None:
-    """Create ``out`` (or check that its configuration is ``config``) and write the manifest."""
-    try:
-        (out / RECORDS).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DatasetError(f"cannot create the dataset folder {str(out)!r}: {exc.strerror or exc}") from None
-    with _locked(out):
-        old = _read_json(out / MANIFEST)
-        stored = (old or {}).get("config") or {}
-        diff = [k for k in sorted(set(stored) | set(config)) if stored.get(k) != config.get(k)]
-        if old is not None and diff:
-            raise DatasetError(f"{str(out)!r} holds a dataset of another configuration (differs in "
-                               f"{', '.join(diff)}); give another --out or the same settings")
-        _write_json(out / MANIFEST, _manifest(out, config))
-
-
-#: Seconds between rewrites of the manifest while a run goes on (it is rewritten at the end too;
-#: the records are what resuming reads).
-MANIFEST_EVERY = 30.0
-
-
-def _write_manifest(out: Path, config: dict) -> None:
-    with _locked(out):
-        _write_json(out / MANIFEST, _manifest(out, config))
-
-
-def _is_done(out: Path, entry: ObjectEntry) -> bool:
-    record = _read_json(out / RECORDS / f"{entry.name}.json")
-    return bool(record) and record.get("status") == "done" and part_path(out, entry.name).is_file()
-
-
-def _clean_temporaries(folder: Path) -> None:
-    """The hidden temporary files a killed writer of this object left behind."""
-    if folder.is_dir():
-        for f in folder.glob(f".{PART}.*.tmp"):
-            f.unlink(missing_ok=True)
-
-
 # ---------------------------------------------------------------------------------------------
 # Building
 
@@ -292,6 +169,8 @@ class DatasetSummary:
 
     def format(self) -> str:
         """A table of the shard's objects and a one-line total."""
+        if any("valid_rate" in r for r in self.rows.values()):
+            return "\n".join(self._hand_lines() + [self._total()])
         critical = any("critical_mu_p50" in r for r in self.rows.values())
         lines = [f"{'object':<28} {'status':<7} {'grasps':>8} {'FC %':>6} {'Q p50':>7} {'P(FC)':>6}"
                  + (f" {'mu* p50':>7}" if critical else "")]
@@ -303,10 +182,24 @@ class DatasetSummary:
                              + (f" {'' if m is None else format(m, '7.3f'):>7}" if critical else ""))
             else:
                 lines.append(f"{name[:28]:<28} {'failed':<7} {r.get('reason', '')}")
-        i, n = self.shard
-        lines.append(f"dataset        {self.out}: {len(self.done)} objects done, {len(self.skipped)} already done, "
-                     f"{len(self.failed)} failed (shard {i}/{n}) in {self.seconds:.1f} s")
+        lines.append(self._total())
         return "\n".join(lines)
+
+    def _hand_lines(self) -> list[str]:
+        """The table of a dataset of hand grasps: starts, valid grasps, median Q of the valid ones, seconds."""
+        lines = [f"{'object':<28} {'status':<7} {'starts':>7} {'valid':>6} {'valid %':>7} {'Q p50':>7} {'s':>7}"]
+        for name, r in sorted(self.rows.items()):
+            if r.get("status") == "done":
+                lines.append(f"{name[:28]:<28} {'done':<7} {r['num']:>7,} {r['valid']:>6,} {100 * r['valid_rate']:>7.1f} "
+                             f"{r.get('quality_p50') or math.nan:>7.3f} {r.get('seconds', math.nan):>7.1f}")
+            else:
+                lines.append(f"{name[:28]:<28} {'failed':<7} {r.get('reason', '')}")
+        return lines
+
+    def _total(self) -> str:
+        i, n = self.shard
+        return (f"dataset        {self.out}: {len(self.done)} objects done, {len(self.skipped)} already done, "
+                f"{len(self.failed)} failed (shard {i}/{n}) in {self.seconds:.1f} s")
 
 
 def config_of(*, fingers: int, num: int, seed: int, scheme: str, mu: float, num_edges: int, torque_test: str,
@@ -348,12 +241,12 @@ def build(
     *,
     num: int = 10_000,
     fingers: int | None = None,
-    mu: float = 0.364,
+    mu: float | None = None,
     num_edges: int = 8,
     seed: int = 0,
     scheme: str = "uniform",
     torque_test: str = "exact",
-    contact: str = "hard",
+    contact: str | None = None,
     torsion: float | None = None,
     robust=None,
     gripper=None,
@@ -362,15 +255,19 @@ def build(
     chunk: int | None = None,
     shard: tuple[int, int] | None = None,
     progress: bool = False,
+    hand=None,
+    starts: int = 256,
+    steps: int = 200,
 ) -> DatasetSummary:
-    """Sample and score ``num`` grasps of every object of ``source`` into the dataset ``out``.
+    """Sample and score ``num`` grasps of every object of ``source`` into the dataset ``out``, or
+    synthesize the grasps of a ``hand``.
 
     Args:
         source: a folder of mesh files or a manifest file (:func:`list_objects`).
         out: the dataset folder (created; an existing one is resumed if its configuration is this).
         num, fingers, mu, num_edges, seed, scheme, torque_test, contact, torsion, chunk: as
             :func:`grasp_jax.pipeline.run`, the same for every object (``fingers``: 4 by default,
-            2 with a gripper).
+            2 with a gripper; ``mu`` 0.364 and ``contact`` ``"hard"`` by default).
         robust: :class:`grasp_jax.pipeline.RobustLabels` to add robust labels (its ``obj`` is
             set per object). With a gripper and noise that moves contacts, the jaws are cast again
             at every perturbed pose (:func:`grasp_jax.grippers.robust_jaws`).
@@ -384,6 +281,13 @@ def build(
         shard: ``(i, N)``: this process does objects ``i::N`` (default: from the SLURM array
             variables, else all).
         progress: a progress bar over the objects.
+        hand: a :class:`grasp_jax.hands.Hand`, a URDF file or ``"default"``: each object's part is
+            :func:`grasp_jax.hands.synthesize` of this hand (``starts``, ``steps``, ``mu``,
+            ``contact``, ``num_edges``, ``seed``; ``mu`` 0.5 and soft contacts by default), one row
+            per start (:meth:`grasp_jax.hands.HandGraspResult.save`); its record has the valid
+            count and rate, the median Q of the valid grasps and the seconds. The manifest records
+            the hand's name and URDF file. ``num``, ``torque_test`` and ``chunk`` do not apply;
+            ``gripper``, ``robust``, ``critical``, ``fingers``, ``scheme`` and ``torsion`` are errors.
 
     Returns:
         :class:`DatasetSummary`. An object that cannot be read or scored is recorded as failed
@@ -392,28 +296,46 @@ def build(
     Raises:
         DatasetError: no objects, a bad shard, a dataset of another configuration at ``out``.
     """
+    t0 = time.perf_counter()
+    if hand is not None:
+        config, build_one = _hand_settings(hand, starts=starts, steps=steps, mu=mu, contact=contact, torsion=torsion,
+                                           num_edges=num_edges, seed=seed, fingers=fingers, scheme=scheme,
+                                           robust=robust, gripper=gripper, collision=collision, critical=critical)
+        entries, shard = list_objects(source), _check_shard(shard)
+    else:
+        config, build_one, entries, shard = _sampling_settings(
+            source, shard, num=num, fingers=fingers, mu=mu, num_edges=num_edges, seed=seed, scheme=scheme,
+            torque_test=torque_test, contact=contact, torsion=torsion, robust=robust, gripper=gripper,
+            collision=collision, critical=critical, chunk=chunk)
+    out = Path(out)
+    folder.start(out, config)
+    summary = DatasetSummary(out, shard, [], [], {}, {}, 0.0)
+    _build_objects(entries[shard[0]::shard[1]], summary, config, progress, lambda entry: build_one(entry, out))
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _sampling_settings(source, shard, *, num, fingers, mu, num_edges, seed, scheme, torque_test, contact, torsion,
+                       robust, gripper, collision, critical, chunk):
+    """``(config, build_one, entries, shard)`` of sampled and scored grasps (free contacts or a
+    gripper's), checked in this order: the grasps' settings, the objects, the shard, the labels."""
     from . import pipeline
 
-    t0 = time.perf_counter()
+    mu = 0.364 if mu is None else mu
+    contact = "hard" if contact is None else contact
     fingers, critical = _grasp_settings(fingers=fingers, scheme=scheme, gripper=gripper, collision=collision,
                                         critical=critical)
     entries = list_objects(source)
     shard = _check_shard(shard)
-    out = Path(out)
     config = config_of(fingers=fingers, num=num, seed=seed, scheme=scheme, mu=mu, num_edges=num_edges,
                        torque_test=torque_test, contact=contact, torsion=torsion, robust=robust, gripper=gripper,
                        collision=collision, critical=critical)
     if robust is not None and robust.obj is not None:
         raise DatasetError("the robust labels of a dataset take each object in turn: leave RobustLabels.obj unset")
-    _start(out, config)
     settings = dict(num=num, fingers=fingers, mu=mu, num_edges=num_edges, seed=seed, scheme=scheme,
                     torque_test=torque_test, contact=contact, torsion=torsion, chunk=chunk, gripper=gripper,
                     collision=collision, critical=critical)
-    summary = DatasetSummary(out, shard, [], [], {}, {}, 0.0)
-    _build_objects(entries[shard[0]::shard[1]], summary, config, progress,
-                   lambda entry: _build_one(entry, out, pipeline, robust=robust, **settings))
-    summary.seconds = time.perf_counter() - t0
-    return summary
+    return config, lambda entry, out: _build_one(entry, out, pipeline, robust=robust, **settings), entries, shard
 
 
 def _grasp_settings(*, fingers, scheme: str, gripper, collision: bool, critical) -> tuple[int | None, bool]:
@@ -458,24 +380,24 @@ def _build_objects(mine: list, summary: DatasetSummary, config: dict, progress: 
         for entry in items:
             if bar is not None:
                 bar.set_postfix_str(entry.name[:24], refresh=True)
-            if _is_done(out, entry):
+            if folder.is_done(out, entry.name):
                 summary.skipped.append(entry.name)
-                summary.rows[entry.name] = _read_json(out / RECORDS / f"{entry.name}.json")
+                summary.rows[entry.name] = folder.read_json(out / RECORDS / f"{entry.name}.json")
                 continue
             record = build_one(entry)
-            _write_json(out / RECORDS / f"{entry.name}.json", record)  # after the part: the object is done
+            folder.write_json(out / RECORDS / f"{entry.name}.json", record)  # after the part: the object is done
             summary.rows[entry.name] = record
             if record["status"] == "done":
                 summary.done.append(entry.name)
             else:
                 summary.failed[entry.name] = record["reason"]
             if time.monotonic() - written > MANIFEST_EVERY:
-                _write_manifest(out, config)
+                folder.write_manifest(out, config)
                 written = time.monotonic()
     finally:
         if bar is not None:
             bar.close()
-        _write_manifest(out, config)
+        folder.write_manifest(out, config)
 
 
 def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -> dict:
@@ -486,7 +408,7 @@ def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -
     try:
         obj = _load(entry)
         path.parent.mkdir(parents=True, exist_ok=True)
-        _clean_temporaries(path.parent)
+        folder.clean_temporaries(path.parent)
         labels = None if robust is None else dataclasses.replace(robust, obj=obj)
         result = pipeline.run(obj, out=path, object_spec=entry.spec, robust=labels, **settings)
     except (KeyboardInterrupt, SystemExit):
@@ -509,6 +431,71 @@ def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -
     return record
 
 
+# ---------------------------------------------------------------------------------------------
+# Hand grasps
+
+
+def _hand_settings(hand, *, starts, steps, mu, contact, torsion, num_edges, seed, fingers, scheme, robust, gripper,
+                   collision, critical):
+    """``(config, build_one)`` of a dataset of ``hand``'s grasps (:func:`grasp_jax.hands.synthesize`);
+    ``hand`` loaded where it is a file or ``"default"``."""
+    from . import hands
+
+    given = [what for what, set_ in (("a gripper", gripper is not None or collision),
+                                     ("robust labels", robust is not None), ("the critical friction", critical),
+                                     ("fingers", fingers is not None), ("a sampling scheme", scheme != "uniform"),
+                                     ("a torsion", torsion is not None)) if set_]
+    if given:
+        raise DatasetError(f"hand grasps and {given[0]} do not go together (the hand's fingertips are the contacts, "
+                           "soft ones with the torsion of a fingertip patch): leave it out")
+    mu = 0.5 if mu is None else mu
+    contact = "soft" if contact is None else contact
+    if contact not in ("soft", "hard"):
+        raise DatasetError(f"a hand's contacts are 'soft' or 'hard'; got {contact!r}")
+    for name, value in (("starts", starts), ("steps", steps)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise DatasetError(f"{name} must be an integer >= 1; got {value!r}")
+    hand = hand if isinstance(hand, hands.Hand) else hands.load(hand)
+    config = json.loads(json.dumps({
+        "hand": {"name": hand.name, "urdf": os.path.abspath(hand.path) if hand.path else None},
+        "starts": int(starts), "steps": int(steps), "mu": float(mu), "contact": contact, "edges": int(num_edges),
+        "seed": int(seed), "objective": "closure"}))
+    settings = dict(starts=int(starts), steps=int(steps), mu=float(mu), contact=contact, num_edges=int(num_edges),
+                    seed=int(seed))
+    return config, lambda entry, out: _build_one_hand(entry, out, hand, **settings)
+
+
+def _build_one_hand(entry: ObjectEntry, out: Path, hand, **settings) -> dict:
+    """Synthesize and write one object's hand grasps; its record (``done`` with the valid count and
+    rate, the median Q of the valid grasps, or ``failed`` with the reason)."""
+    from . import hands
+
+    t0 = time.perf_counter()
+    record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
+    path = part_path(out, entry.name)
+    try:
+        obj = _load(entry)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        folder.clean_temporaries(path.parent)
+        result = hands.synthesize(hand, obj, **settings)
+        result.save(path)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure of one object is recorded, the others go on
+        record.update(status="failed", reason=_one_line(exc), seconds=time.perf_counter() - t0)
+        return record
+    valid = np.asarray(result.valid, bool)
+    record.update(
+        status="done", part=str(path.relative_to(out)), num=len(result), valid=int(valid.sum()),
+        valid_rate=float(valid.mean()), force_closure=int(np.sum(result.force_closure)),
+        force_closure_rate=float(np.mean(result.force_closure)),
+        quality_p50=_finite(np.median(result.quality[valid])) if valid.any() else None,
+        penetration_p50_mm=_finite(1e3 * np.median(result.penetration)), radius=float(obj.radius),
+        synthesis_seconds=float(result.seconds), seconds=time.perf_counter() - t0,
+    )
+    return record
+
+
 def plot_summary(out, path=None) -> Path | None:
     """A figure of every object done in the dataset at ``out`` (all shards' records): its
     force-closure rate, median Q of its force-closure grasps and, with robust labels, mean
@@ -517,13 +504,16 @@ def plot_summary(out, path=None) -> Path | None:
     from . import storage, viz
 
     out = Path(out)
-    rows = {k: r for k, r in sorted(_records(out).items()) if r.get("status") == "done"}
+    rows = {k: r for k, r in sorted(folder.records(out).items()) if r.get("status") == "done"}
     if not rows:
         return None
     path = Path(path) if path is not None else out / FIGURE
     names = list(rows)
     panels = [("force-closure %", [100 * rows[k]["force_closure_rate"] for k in names]),
               ("median Q (force-closure grasps)", [rows[k].get("quality_p50") or 0.0 for k in names])]
+    if all("valid_rate" in rows[k] for k in names):  # hand grasps
+        panels = [("valid %", [100 * rows[k]["valid_rate"] for k in names]), panels[0],
+                  ("median Q (valid grasps)", panels[1][1])]
     if any(rows[k].get("p_fc_mean") is not None for k in names):
         panels.append(("mean P(force-closure) under noise", [rows[k].get("p_fc_mean") or 0.0 for k in names]))
     plt = viz.pyplot()

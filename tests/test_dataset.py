@@ -1,7 +1,8 @@
 """``grasp-jax dataset``: a Parquet dataset partitioned by object, resumed after a kill with the same
-rows, two shards equal to one run, a broken mesh recorded as failed among good ones, bad input.
+rows, two shards equal to one run, a broken mesh recorded as failed among good ones, bad input, hand grasps.
 
-Small: three meshes of a few hundred triangles, 300 grasps each, robust labels of 4 samples."""
+Small: three meshes of a few hundred triangles, 300 grasps each, robust labels of 4 samples; the
+built-in hand's grasps of two meshes, 8 starts x 10 steps."""
 
 from __future__ import annotations
 
@@ -221,3 +222,49 @@ def test_parallel_jaw_dataset(meshes, tmp_path):
         dataset.build(meshes, out, num=200, seed=3, mu=0.5, contact="soft", torsion=0.002,
                       robust=settings["robust"])
     assert dataset.build(meshes, out, **settings).skipped == ["a_box", "b_ball", "c_can"]
+
+
+def test_hand_dataset(tmp_path, env):  # noqa: F811
+    """Hand grasps over a folder of objects: one part per object (``hands.synthesize``'s result, one
+    row per start), records with the valid count, the hand in the manifest, resumed only with the
+    same hand; ``--hand`` with a gripper or robust labels is one clear error."""
+    import dataclasses
+
+    import trimesh
+
+    from grasp_jax import hands
+
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    trimesh.creation.box((0.06, 0.05, 0.07)).export(folder / "a_box.stl")
+    trimesh.creation.icosphere(2, 0.035).export(folder / "b_ball.obj")
+    hand = hands.load("default")
+    out = tmp_path / "ds"
+    settings = dict(hand=hand, starts=8, steps=10)
+    summary = dataset.build(folder, out, **settings)
+    assert summary.done == ["a_box", "b_ball"] and not summary.failed
+    for name in summary.done:
+        result = hands.load_result(dataset.part_path(out, name))
+        record = summary.rows[name]
+        assert len(result) == 8 and result.steps == 10 and result.contact == "soft" and result.mu == 0.5
+        assert record["num"] == 8 and record["valid"] == int(result.valid.sum()) and record["seconds"] > 0
+        assert record["valid_rate"] == result.valid.mean() and record["part"] == f"object={name}/part.parquet"
+    manifest = json.loads((out / "_manifest.json").read_text())
+    assert manifest["config"]["hand"] == {"name": "default", "urdf": None}
+    assert manifest["config"]["starts"] == 8 and manifest["config"]["steps"] == 10
+    assert manifest["objects_done"] == 2 and manifest["grasps"] == 16
+    assert "valid %" in summary.format() and dataset.read(out).num_rows == 16
+    again = dataset.build(folder, out, **settings)
+    assert again.skipped == ["a_box", "b_ball"] and not again.done
+    with pytest.raises(dataset.DatasetError, match="another configuration .*differs in hand"):
+        dataset.build(folder, out, **{**settings, "hand": dataclasses.replace(hand, name="other")})
+    with pytest.raises(dataset.DatasetError, match="hand grasps and robust labels do not go together"):
+        dataset.build(folder, out, robust=ROBUST, **settings)
+    for flags, message in ((["--gripper", "parallel-jaw", "--max-width", "0.1"], "--hand and --gripper describe two"),
+                           (["--robust", "4", "--sigma-pos", "0.02"], "--robust sets robust labels"),
+                           (["--starts", "8"], None)):
+        hand_flags = [] if message is None else ["--hand", "default"]
+        cli = grasp_jax("dataset", folder, "--out", "cli", *hand_flags, *flags, env=env, cwd=tmp_path, check=False)
+        message = message or "--starts sets the hand grasps: add --hand"
+        assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and message in cli.stderr, cli.stderr
+    assert not (tmp_path / "cli").exists()

@@ -74,7 +74,7 @@ def contact_settings(args, mu, meta: dict | None = None) -> tuple[str | None, fl
     return contact, args.torsion
 
 
-def _noise_given(args) -> list[str]:
+def noise_given(args) -> list[str]:
     """The noise flags set on the command line."""
     return [flag for flag, value in (("--sigma-pos", args.sigma_pos), ("--sigma-normal", args.sigma_normal),
                                      ("--mu-range", args.mu_range), ("--mu-sigma", args.mu_sigma),
@@ -84,7 +84,7 @@ def _noise_given(args) -> list[str]:
 def robust_settings(args, obj=None):
     """The :class:`grasp_jax.pipeline.RobustLabels` of --robust and the noise flags (``None``
     without --robust). Checked before any work: call it once without ``obj`` first."""
-    given = _noise_given(args)
+    given = noise_given(args)
     if args.robust is None:
         extra = given + [f for f, v in (("--no-margin", args.no_margin), ("--robust-seed", args.robust_seed),
                                         ("--quantile", args.quantile != 0.1)) if v]
