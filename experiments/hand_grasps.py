@@ -20,13 +20,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from _common import SHARED_MESHES, Timer, parser, table, write, write_json
 
-from _common import SHARED_MESHES, Timer, parser, table, write, write_json  # noqa: E402
-from grasp_jax import _batch, hands, objects  # noqa: E402
-from grasp_jax.hands import _geometry  # noqa: E402
-from grasp_jax.hands._kinematics import forward  # noqa: E402
+from grasp_jax import _batch, hands, objects
+from grasp_jax.hands import _geometry
+from grasp_jax.hands._kinematics import forward
 
 HANDS_DIR = SHARED_MESHES.parent / "hands"
 HANDS = {

@@ -263,7 +263,7 @@ def test_bad_arguments(default_hand, glass):
         hands.synthesize(default_hand, glass, starts=0)
     with pytest.raises(ValueError, match="objective"):
         hands.synthesize(default_hand, glass, objective="surrogate")
-    with pytest.raises(ValueError, match="Hand"):
+    with pytest.raises(TypeError, match="Hand"):
         hands.synthesize("default", glass)
     from grasp_jax import objects
 

@@ -5,8 +5,8 @@
 * ``-closure``: grasp_jax's own objective on those contacts (``_objectives.objective_one``, the
   same LPs as ``gj.optimize``; or DexGraspNet's energy with ``kind="dfc"``);
 * distance: the contacts' distances to the surface;
-* penetration: the hand's collision spheres into the object (SDF) and the object's surface points
-  into the spheres;
+* penetration: the hand's collision spheres into the object (SDF) and the object's surface
+  points into the spheres;
 * self-collision: spheres of different fingers that overlap.
 
 Lengths are in units of the object's radius. Joint limits are kept by projection (the optimizer
@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._contact import ContactModel
 from .._objectives import objective_one
 from ._hand import Hand
 from ._kinematics import forward, transform_points
@@ -32,9 +33,9 @@ class Weights:
     """Weights of the energy terms (static; hashable)."""
 
     closure: float = 1.0
-    distance: float = 1000.0
-    penetration: float = 300.0
-    self_collision: float = 30.0
+    distance: float = 300.0
+    penetration: float = 100.0
+    self_collision: float = 10.0
     #: Sphere penetration (m) left unpenalized: the spheres lie inside the links, so a little of it
     #: lets a fingertip touch where a neighbouring link's sphere grazes the object.
     allowance: float = 6e-4
@@ -57,8 +58,8 @@ def spheres(hand: Hand, frames):
 
 
 def penetration(hand: Hand, geom: ObjectGeometry, frames, allowance=0.0) -> tuple[jax.Array, jax.Array]:
-    """``(sum of depths, largest depth)`` (m) of the spheres into the object (less
-    ``allowance``) and of the object's surface points into the spheres."""
+    """``(sum of depths, largest depth)`` (m) of the hand's collision spheres into the object
+    (less ``allowance``) and of the object's surface points into the spheres."""
     centers, radii = spheres(hand, frames)
     into_object = jax.nn.relu(radii - allowance - jax.vmap(lambda x: distance(geom, x))(centers))
     gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
@@ -79,8 +80,8 @@ def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *
     """``(energy (), monitors)`` of one configuration (``pose: (7,)`` wxyz, ``joints: (J,)``)."""
     frames = forward(hand, pose, joints)
     points, normals, dist, _ = contacts(hand, geom, frames)
-    value, _ = objective_one(points, normals, mu, num_edges, kind, geom.center, geom.scale, iterations,
-                             best_effort=True, contact=contact, torsion=torsion)
+    model = ContactModel(contact, num_edges, torsion)
+    value, _ = objective_one(points, normals, mu, model, kind, geom.center, geom.scale, iterations, best_effort=True)
     pen_sum, pen_max = penetration(hand, geom, frames, weights.allowance)
     collide = self_collision(hand, frames, pairs)
     scale = geom.scale

@@ -3,8 +3,8 @@
 * fingers: the leaf links reached through a moving joint; a finger's distal body is the link of
   its last moving joint with the links fixed to it;
 * which way a joint closes: towards its larger limit (from 0, or the middle of the range);
-* collision spheres: inside each link's collision surface, touching it, spread by farthest-point
-  sampling;
+* collision spheres: inside each collision element, touching its surface, spread by
+  farthest-point sampling;
 * contact candidates: points of the distal body's surface whose outward normal faces the flexion
   direction of the finger's last joint, a few per finger;
 * the palm frame: centre, normal (where the fingers close to) and the fingers' direction.
@@ -20,13 +20,14 @@ import trimesh
 from ._hand import FIXED, Collision
 
 #: Surface samples drawn per link (spheres) and per distal body (candidates).
-SAMPLES = 600
-#: Largest collision-sphere radius (m) and spheres per link at most.
+SAMPLES = 1000
+#: Largest collision-sphere radius (m); spheres per collision element, at least and at most (by
+#: its area over the area a sphere covers).
 MAX_RADIUS = 0.012
-SPHERES_PER_LINK = 8
+SPHERES = (3, 12)
 #: Contact candidates per finger, and the cosine between a candidate's normal and the flexion
 #: direction above which a surface point counts as palm-facing.
-CANDIDATES = 16
+CANDIDATES = 32
 FACING_COS = 0.6
 
 
@@ -96,25 +97,18 @@ def _outer_samples(meshes, seed: int):
 
 
 def link_spheres(collisions, num_links: int, seed: int = 0):
-    """``(centers (S, 3), radii (S,), links (S,))``: spheres inside each link's collision elements,
-    in the link frames."""
+    """``(centers (S, 3), radii (S,), links (S,))``: spheres inside each collision element,
+    touching its surface, spread by farthest-point sampling, in the link frames."""
     centers, radii, links = [], [], []
-    for link in range(num_links):
-        elems = [c for c in collisions if c.link == link]
-        if not elems:
-            continue
-        pts, rad = [], []
-        for c in elems:
-            m = element_mesh(c)
-            r = min(MAX_RADIUS, _thickness(c, m))
-            p, n = _sample([m], max(40, SAMPLES // len(elems)), seed)
-            pts.append(p - r * n)
-            rad.append(np.full(len(p), r))
-        pts, rad = np.concatenate(pts), np.concatenate(rad)
-        keep = farthest(pts, SPHERES_PER_LINK, int(np.argmax(rad)))
-        centers.append(pts[keep])
-        radii.append(rad[keep])
-        links.append(np.full(len(keep), link))
+    for c in collisions:
+        m = element_mesh(c)
+        r = min(MAX_RADIUS, _thickness(c, m))
+        p, n = _sample([m], SAMPLES // 4, seed)
+        count = int(np.clip(round(m.area / (2 * np.pi * r * r)), *SPHERES))
+        keep = farthest(p - r * n, count)
+        centers.append((p - r * n)[keep])
+        radii.append(np.full(len(keep), r))
+        links.append(np.full(len(keep), c.link))
     if not centers:
         return np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32)
     return np.concatenate(centers), np.concatenate(radii), np.concatenate(links).astype(np.int32)

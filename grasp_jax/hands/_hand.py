@@ -117,7 +117,7 @@ class Hand:
         except ValueError:
             raise ValueError(f"hand {self.name!r} has no link {name!r}; links: {', '.join(self.link_names)}") from None
 
-    def with_candidates(self, points, normals) -> "Hand":
+    def with_candidates(self, points, normals) -> Hand:
         """This hand with other contact candidates: ``points, normals: (F, K, 3)`` in the frames of
         :attr:`finger_link` (normals are normalized)."""
         points = np.asarray(points, dtype=np.float64)

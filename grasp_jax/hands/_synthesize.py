@@ -24,9 +24,9 @@ from tqdm.auto import tqdm
 
 from .. import objects as _objects
 from .._api import _bind, _lp_columns, evaluate
-from .._contact import patch_torsion
 from .._batch import map_grasps
 from .._constants import DEFAULT_NUM_EDGES, first_pass_iterations
+from .._contact import patch_torsion
 from .._precision import float64_scope
 from .._validate import check_int, check_num_edges, check_scalar
 from . import _geometry as geo
@@ -62,7 +62,7 @@ def _torsion(contact: str, mu: float) -> float:
 
 def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: float = 0.5, contact: str = "soft",
                seed: int = 0, objective: str = "closure", num_edges: int = DEFAULT_NUM_EDGES,
-               iterations: int | None = None, weights: Weights = Weights(), dtype="float64",
+               iterations: int | None = None, weights: Weights | None = None, dtype="float64",
                progress: bool = False) -> HandGraspResult:
     """Optimize ``starts`` grasps of ``hand`` on ``obj``.
 
@@ -78,7 +78,7 @@ def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: floa
         objective: ``"closure"`` (grasp_jax's force-closure objective, the same LPs as
             ``gj.optimize``) or ``"dfc"`` (DexGraspNet's energy, a baseline).
         num_edges, iterations: friction cone edges; interior-point iterations per LP and step.
-        weights: :class:`Weights` of the energy terms.
+        weights: :class:`Weights` of the energy terms (default ``Weights()``).
         dtype: ``"float64"`` or ``"float32"``.
         progress: show a progress bar over the steps.
 
@@ -86,8 +86,9 @@ def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: floa
         :class:`HandGraspResult`, one row per start.
     """
     t0 = time.perf_counter()
+    weights = Weights() if weights is None else weights
     if not isinstance(hand, Hand):
-        raise ValueError(f"hand must be a grasp_jax.hands.Hand (grasp_jax.hands.load(...)); got {type(hand).__name__}")
+        raise TypeError(f"hand must be a grasp_jax.hands.Hand (grasp_jax.hands.load(...)); got {type(hand).__name__}")
     obj = obj if hasattr(obj, "dim") else _objects.load(obj)
     starts, steps = check_int("starts", starts), check_int("steps", steps)
     mu, num_edges = check_scalar("mu", mu), check_num_edges(num_edges)
@@ -175,7 +176,7 @@ def _segment(*args, treedef, kind, num_edges, iterations, contact, weights, leng
         better = (e < best_energy) & jnp.isfinite(e) & active
         best = jax.tree_util.tree_map(lambda b, c: jnp.where(better, c, b), best, params)
         best_energy = jnp.where(better, e, best_energy)
-        keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)  # noqa: E731
+        keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, old)
         return (*keep((moved, new_state), (params, opt_state)), best, best_energy), e
 
     carry, energies = jax.lax.scan(step, (params, opt_state, best, best_energy), jnp.arange(length))
@@ -240,11 +241,15 @@ def _final_one(pose, joints, shared):
 
 @functools.lru_cache(maxsize=8)
 def _surface_samples(collisions: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``(points (N, 3), links (N,))``: samples of every collision element in its link's frame."""
+    """``(points (N, 3), links (N,))``: random samples of every collision element and its convex
+    hull's vertices, in its link's frame."""
     pts, links = [], []
     for c in collisions:
-        p, _ = trimesh.sample.sample_surface(geo.element_mesh(c), PENETRATION_SAMPLES, seed=0)
-        pts.append(np.asarray(p))
+        m = geo.element_mesh(c)
+        p, _ = trimesh.sample.sample_surface(m, PENETRATION_SAMPLES, seed=0)
+        corners = np.asarray(m.convex_hull.vertices)
+        p = np.concatenate([np.asarray(p), corners[geo.farthest(corners, 32)]])
+        pts.append(p)
         links.append(np.full(len(p), c.link))
     return np.concatenate(pts), np.concatenate(links).astype(np.int32)
 

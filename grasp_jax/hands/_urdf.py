@@ -142,8 +142,7 @@ def _mimic(joint, joints: dict, act: dict, where: str) -> tuple[int, float, floa
 def _mesh_file(filename: str, folder: Path) -> str:
     name = filename
     for prefix in ("file://", "package://"):
-        if name.startswith(prefix):
-            name = name[len(prefix):]
+        name = name.removeprefix(prefix)
     candidates = [Path(name)] if os.path.isabs(name) else [folder / name]
     if filename.startswith("package://"):  # package://<pkg>/rest: try the rest beside the URDF too
         candidates.append(folder / Path(*Path(name).parts[1:]))
