@@ -14,7 +14,7 @@ import numpy as np
 from . import _closure, _friction
 from ._batch import Retry, Staged, map_grasps
 from ._constants import DEFAULT_NUM_EDGES, default_iterations, first_pass_iterations, tolerances
-from ._contact import CONTACTS, columns_per_contact
+from ._contact import CONTACTS, ContactModel, columns_per_contact
 from ._precision import scope_for
 from ._result import GraspEvaluation
 from ._validate import check_grasps, check_int, check_num_edges, check_scalar, is_traced
@@ -95,35 +95,39 @@ def _restart_points(dtype) -> tuple[np.int32, np.int32]:
     return np.int32(min(RETRY_RESTARTS, every)), np.int32(every)
 
 
-def _evaluate_single(points, normals, tangents, shared, *, num_edges, torque_test, contact="hard"):
-    friction, iterations, restarts = shared  # traced: every budget runs one compiled program
-    mu, torsion = friction if isinstance(friction, tuple) else (friction, 0.0)
-    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
-                                 contact, torsion)
+def contact_model(contact, torsion, num_edges: int, d: int) -> ContactModel:
+    """The :class:`ContactModel` of validated arguments (:func:`check_contact`)."""
+    contact, torsion = check_contact(contact, torsion, d)
+    return ContactModel(contact, num_edges, torsion)
 
 
-def _torque_stage(points, normals, tangents, shared, *, num_edges, contact):
-    friction, iterations, restarts = shared
-    mu, torsion = friction
-    return _closure.torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
+def _typed(model: ContactModel, dtype) -> ContactModel:
+    return dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype))
 
 
-def _quality_stage(points, normals, tangents, torques, shared, *, num_edges, contact):
-    friction, iterations, restarts = shared
-    mu, torsion = friction
-    return _closure.quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact,
-                                  torsion)
+def _evaluate_single(points, normals, tangents, shared, *, torque_test):
+    (mu, model), iterations, restarts = shared  # traced: every budget runs one compiled program
+    return _closure.evaluate_one(points, normals, mu, model, torque_test, tangents, iterations, restarts)
 
 
-def evaluation_function(points, num_edges: int, torque_test: str, contact: str, single: Callable):
+def _torque_stage(points, normals, tangents, shared):
+    (mu, model), iterations, restarts = shared
+    return _closure.torque_stage(points, normals, mu, model, tangents, iterations, restarts)
+
+
+def _quality_stage(points, normals, tangents, torques, shared):
+    (mu, model), iterations, restarts = shared
+    return _closure.quality_stage(points, normals, mu, model, torques, tangents, iterations, restarts)
+
+
+def evaluation_function(points, torque_test: str):
     """The single-grasp function of an evaluation, ``(points, normals, tangents, shared) ->``
-    :class:`GraspEvaluation` with ``shared = ((mu, torsion), iterations, restarts)``: in two
+    :class:`GraspEvaluation` with ``shared = ((mu, model), iterations, restarts)``: in two
     stages (``_batch.Staged``: the quality LP only where the torque LP leaves it needed) where
-    ``_closure.staged``, else ``single`` bound to the settings."""
+    ``_closure.staged``, else in one."""
     if _closure.staged(points, torque_test):
-        return Staged(_bind(_torque_stage, num_edges=num_edges, contact=contact),
-                      _bind(_quality_stage, num_edges=num_edges, contact=contact))
-    return _bind(single, num_edges=num_edges, torque_test=torque_test, contact=contact)
+        return Staged(_torque_stage, _quality_stage)
+    return _bind(_evaluate_single, torque_test=torque_test)
 
 
 def evaluate(
@@ -171,11 +175,11 @@ def evaluate(
         raise ValueError(f"torque_test must be one of {_TORQUE_TESTS}; got {torque_test!r}")
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
                                                                            torsion)
-    contact, torsion = check_contact(contact, torsion, points.shape[-1])
-    fn = evaluation_function(points, num_edges, torque_test, contact, _evaluate_single)
-    budget, retry = _passes(points, num_edges, iterations, contact)
+    model = contact_model(contact, torsion, num_edges, points.shape[-1])
+    fn = evaluation_function(points, torque_test)
+    budget, retry = _passes(points, model, iterations)
     with scope:
-        friction = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype))
+        friction = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype))
         shared = (friction, *budget)
         retry = tuple(Retry((friction, *pass_), _unfinished) for pass_ in retry)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
@@ -184,7 +188,7 @@ def evaluate(
     return result
 
 
-def _passes(points, num_edges: int, iterations, contact: str = "hard") -> tuple[tuple, tuple]:
+def _passes(points, model: ContactModel, iterations) -> tuple[tuple, tuple]:
     """``(iterations, restarts)`` of the first pass and of each retry pass (:class:`Retry`) of
     :func:`evaluate` and :func:`quality`.
 
@@ -197,7 +201,7 @@ def _passes(points, num_edges: int, iterations, contact: str = "hard") -> tuple[
     if iterations is not None:
         iterations = _check_iterations(iterations)
         return (iterations if is_traced(iterations) else np.int32(iterations), every), ()
-    columns = _lp_columns(points.shape[-2], points.shape[-1], num_edges, contact)
+    columns = _lp_columns(points.shape[-2], points.shape[-1], model.num_edges, model.kind)
     full = np.int32(default_iterations(columns))
     retry = ((full, few),) + (((full, every),) if every > few else ())
     return (np.int32(first_pass_iterations(columns)), every), retry
@@ -226,11 +230,9 @@ def force_closure(points, normals, *, mu, num_edges: int = DEFAULT_NUM_EDGES, to
                     contact=contact, torsion=torsion).force_closure
 
 
-def _quality_single(points, normals, tangents, shared, *, num_edges, signed, contact="hard"):
-    friction, iterations, restarts = shared  # traced, as in evaluate
-    mu, torsion = friction if isinstance(friction, tuple) else (friction, 0.0)
-    return _closure.quality_one(points, normals, mu, num_edges, signed, tangents, iterations, restarts, contact,
-                                torsion)
+def _quality_single(points, normals, tangents, shared, *, signed):
+    (mu, model), iterations, restarts = shared  # traced, as in evaluate
+    return _closure.quality_one(points, normals, mu, model, signed, tangents, iterations, restarts)
 
 
 def _quality_unfinished(out) -> np.ndarray:
@@ -267,21 +269,20 @@ def quality(
     """
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
                                                                            torsion)
-    contact, torsion = check_contact(contact, torsion, points.shape[-1])
-    fn = _bind(_quality_single, num_edges=num_edges, signed=signed, contact=contact)
-    budget, retry = _passes(points, num_edges, iterations, contact)
+    model = contact_model(contact, torsion, num_edges, points.shape[-1])
+    fn = _bind(_quality_single, signed=signed)
+    budget, retry = _passes(points, model, iterations)
     with scope:
-        friction = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype))
+        friction = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype))
         shared = (friction, *budget)
         retry = tuple(Retry((friction, *pass_), _quality_unfinished) for pass_ in retry)
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
         return value
 
 
-def _min_weight_single(points, normals, tangents, shared, *, num_edges, iterations, contact):
-    mu, torsion, origin, torque_scale = shared
-    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, iterations,
-                                   contact, torsion)
+def _min_weight_single(points, normals, tangents, shared, *, iterations):
+    mu, model, origin, torque_scale = shared
+    return _closure.min_weight_one(points, normals, mu, model, origin, torque_scale, tangents, iterations)
 
 
 def min_weight(
@@ -319,7 +320,7 @@ def min_weight(
     points, normals, tangents, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, tangents,
                                                                            torsion)
     d = points.shape[-1]
-    contact, torsion = check_contact(contact, torsion, d)
+    model = contact_model(contact, torsion, num_edges, d)
     if origin is not None and not is_traced(origin):
         origin = np.asarray(origin, points.dtype)
     if origin is not None and origin.shape != (d,):
@@ -328,10 +329,10 @@ def min_weight(
     if is_traced(origin, torque_scale) and not is_traced(points):
         points, normals, tangents = _as_traced(points, normals, tangents)
         scope = scope_for(points.dtype, traced=True)
-    fn = _bind(_min_weight_single, num_edges=num_edges, iterations=iterations, contact=contact)
+    fn = _bind(_min_weight_single, iterations=iterations)
     with scope:
         origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
-        shared = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype), origin,
+        shared = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype), origin,
                   jnp.asarray(torque_scale, points.dtype))
         margin, status = map_grasps(fn, (points, normals, tangents), shared, batch, block=MIN_WEIGHT_BLOCK)
     _warn_unconverged(status, "min-weight LPs")
@@ -354,29 +355,26 @@ def _bind(func: Callable, **kwargs) -> _Bound:
     return _Bound(func, tuple(sorted(kwargs.items())))
 
 
-def _critical_single(points, normals, tangents, start, shared, *, num_edges, contact):
-    torsion, cap, steps, iterations = shared  # traced: both passes run one compiled program
-    return _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents, iterations,
-                                           steps, start)
+def _critical_single(points, normals, tangents, start, shared):
+    model, cap, steps, iterations = shared  # traced: both passes run one compiled program
+    return _friction.critical_friction_one(points, normals, cap, model, tangents, iterations, steps, start)
 
 
-def _critical_first(points, normals, tangents, start, shared, *, num_edges, contact):
+def _critical_first(points, normals, tangents, start, shared):
     """The first stage of a search pass (``_batch.Staged``): ``steps`` steps, then the searches
     still open go on, gathered, for ``more`` steps (:func:`_critical_more`)."""
-    torsion, cap, steps, more, iterations = shared
+    model, cap, steps, more, iterations = shared
     # the full state (with the last LP's solution) to the second stage, the short one to the batch
-    full = _friction.full_state(start, points.shape, contact, num_edges)
-    mu, status, state = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents,
-                                                        iterations, steps, full)
+    full = _friction.full_state(start, points.shape, model.kind, model.num_edges)
+    mu, status, state = _friction.critical_friction_one(points, normals, cap, model, tangents, iterations, steps, full)
     open_ = (status == _friction.FrictionStatus.NOT_CONVERGED) & (more > 0)
     return (mu, status, state[:_friction.RESUME]), state, open_
 
 
-def _critical_more(points, normals, tangents, start, carry, shared, *, num_edges, contact):
+def _critical_more(points, normals, tangents, start, carry, shared):
     """The second stage: resumed from the first's state (a search it closed ends where it was)."""
-    torsion, cap, steps, more, iterations = shared
-    mu, status, state = _friction.critical_friction_one(points, normals, cap, num_edges, contact, torsion, tangents,
-                                                        iterations, more, carry)
+    model, cap, steps, more, iterations = shared
+    mu, status, state = _friction.critical_friction_one(points, normals, cap, model, tangents, iterations, more, carry)
     return mu, status, state[:_friction.RESUME]
 
 
@@ -429,12 +427,12 @@ def critical_friction(
         scope = scope_for(points.dtype, traced=True)
     traced = is_traced(points)
     if traced:
-        fn = _bind(_critical_single, num_edges=num_edges, contact=contact)
+        fn = _critical_single
     else:
-        fn = Staged(_bind(_critical_first, num_edges=num_edges, contact=contact),
-                    _bind(_critical_more, num_edges=num_edges, contact=contact))
+        fn = Staged(_critical_first, _critical_more)
     with scope:
-        torsion, cap = jnp.asarray(torsion, points.dtype), jnp.asarray(cap, points.dtype)
+        model = ContactModel(contact, num_edges, jnp.asarray(torsion, points.dtype))
+        cap = jnp.asarray(cap, points.dtype)
         # A first pass of few steps, each with a short interior-point budget; the searches it
         # leaves open again with every step and the full budget (``_friction.FIRST_STEPS``,
         # ``FIRST_EXTRA_ITERATIONS``). (No crossover: ``_friction.CROSSOVER``.)
@@ -449,12 +447,12 @@ def critical_friction(
         more = _friction.FIRST_STEPS - _friction.FIRST_STAGE_STEPS
         first = (np.int32(_friction.MAX_STEPS), iterations) if traced else \
             (np.int32(_friction.FIRST_STAGE_STEPS), np.int32(more), np.int32(short))
-        retry = Retry((torsion, cap, np.int32(_friction.MAX_STEPS), np.int32(0), iterations), _search_open,
+        retry = Retry((model, cap, np.int32(_friction.MAX_STEPS), np.int32(0), iterations), _search_open,
                       _resume_search)
         # (traced: a jnp array, a NumPy constant of this dtype is not canonical inside jit)
         start = jnp.zeros(batch + (_friction.RESUME,), points.dtype) if traced else \
             np.zeros(batch + (_friction.RESUME,), points.dtype)
-        mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (torsion, cap, *first), batch,
+        mu, status, _ = map_grasps(fn, (points, normals, tangents, start), (model, cap, *first), batch,
                                    progress=progress, retry=None if traced else retry, block=_friction.BLOCK)
     if not is_traced(status):
         stuck = int(np.sum(np.asarray(status) == _friction.FrictionStatus.NOT_CONVERGED))

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._contact import wrench_columns
+from ._contact import ContactModel, wrench_columns
 from ._polish import open_half_space, polish_exact
 from ._programs import (
     SHIFT,
@@ -237,15 +237,15 @@ def staged(points: jax.Array, torque_test: str = "exact") -> bool:
     return points.shape[-1] == 3 and torque_test == "exact" and not tolerances(points.dtype).crossover
 
 
-def _torque_columns(points, normals, mu, num_edges, tangents, contact, torsion) -> jax.Array:
+def _torque_columns(points, normals, mu, model: ContactModel, tangents) -> jax.Array:
     """``(K, 3)`` the torques about ``c_1`` of the torque test (the columns of contacts 2..n)."""
     normals = safe_normalize(normals)
-    cols = about_first(points, normals, cone_edges(normals, mu, num_edges, tangents), contact, torsion)
+    cols = about_first(points, normals, cone_edges(normals, mu, model.num_edges, tangents), model)
     return cols.torque[cols.fixed:]
 
 
-def torque_stage(points, normals, mu, num_edges: int, tangents=None, iterations=None, restarts=None,
-                 contact: str = "hard", torsion=0.0) -> tuple[GraspEvaluation, Torques, jax.Array]:
+def torque_stage(points, normals, mu, model: ContactModel, tangents=None, iterations=None,
+                 restarts=None) -> tuple[GraspEvaluation, Torques, jax.Array]:
     """The first stage of :func:`evaluate_one` (where :func:`staged`): the torque LP alone.
 
     About half of random grasps have all torques of contacts 2..n about ``c_1`` strictly inside an
@@ -260,11 +260,11 @@ def torque_stage(points, normals, mu, num_edges: int, tangents=None, iterations=
         for :func:`quality_stage`, and whether the quality LP is needed.
     """
     tol = tolerances(points.dtype)
-    tau = _torque_columns(points, normals, mu, num_edges, tangents, contact, torsion)
+    tau = _torque_columns(points, normals, mu, model, tangents)
     t_lp = min_weight_lp(tau)
     (t_sol,) = solve(jax.lax.stop_gradient(t_lp), iterations=iterations, restarts=restarts)
     margin = min_weight_margin_of(tau, t_sol)
-    opposed = (contact == "hard") & (t_sol.status == Status.OPTIMAL) & (margin < -tol.margin)
+    opposed = (model.kind == "hard") & (t_sol.status == Status.OPTIMAL) & (margin < -tol.margin)
     torques = _torque_test(tau, t_sol, _full_budget(t_lp, iterations), opposed)
     rows = 3 + 3 + 1
     out = _evaluation(points, 3, -jnp.ones((), points.dtype), jnp.asarray(Status.OPTIMAL, jnp.int8),
@@ -272,12 +272,12 @@ def torque_stage(points, normals, mu, num_edges: int, tangents=None, iterations=
     return out, torques, ~torques.opposed
 
 
-def quality_stage(points, normals, mu, num_edges: int, torques: Torques, tangents=None, iterations=None,
-                  restarts=None, contact: str = "hard", torsion=0.0) -> GraspEvaluation:
+def quality_stage(points, normals, mu, model: ContactModel, torques: Torques, tangents=None, iterations=None,
+                  restarts=None) -> GraspEvaluation:
     """The second stage of :func:`evaluate_one` (where :func:`staged`): the quality LP, and the
     evaluation from it and the torque test of :func:`torque_stage`. Correct for every grasp: where
     the torques are opposed it reports what the first stage does (``delta = -1``)."""
-    q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+    q_lp, cols = grasp_quality_lp(points, normals, mu, model, tangents)
     (q_sol,) = solve(jax.lax.stop_gradient(q_lp), iterations=iterations, consistent=True, restarts=restarts)
     delta, q_status, q_dual = _quality_value(q_lp, q_sol, iterations, forced=torques.opposed)
     iters = jnp.where(torques.opposed, 0, q_sol.iterations)
@@ -288,13 +288,11 @@ def evaluate_one(
     points: jax.Array,
     normals: jax.Array,
     mu,
-    num_edges: int,
+    model: ContactModel,
     torque_test: str = "exact",
     tangents: jax.Array | None = None,
     iterations: int | None = None,
     restarts: int | None = None,
-    contact: str = "hard",
-    torsion=0.0,
 ) -> GraspEvaluation:
     """Force-closure verdict, quality Q and certificate of one grasp.
 
@@ -302,19 +300,18 @@ def evaluate_one(
         points: ``(n, d)`` contact points; ``points[0]`` is the reference contact ``c_1``.
         normals: ``(n, d)`` outward unit normals.
         mu: friction coefficient.
-        num_edges: edges per 3D friction cone.
+        model: the :class:`~grasp_jax._contact.ContactModel` (kind, cone edges, torsion).
         torque_test: ``"exact"`` (default) or ``"paper"`` (eq. 15 / 21).
         tangents: optional ``(n, 3)`` first tangent of each 3D contact frame.
         iterations: interior-point iterations (default from the problem size).
         restarts: float32 starting points an unfinished LP runs from (``lp.solve``; default all).
-        contact, torsion: the contact model (``_contact``) and its torsional coefficient.
     """
     tol = tolerances(points.dtype)
     d = points.shape[-1]
     if staged(points, torque_test):
-        _, torques, _ = torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
-        return quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact, torsion)
-    q_lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+        _, torques, _ = torque_stage(points, normals, mu, model, tangents, iterations, restarts)
+        return quality_stage(points, normals, mu, model, torques, tangents, iterations, restarts)
+    q_lp, cols = grasp_quality_lp(points, normals, mu, model, tangents)
     tau = cols.torque[cols.fixed:]
     if d == 3 and torque_test == "exact":
         # float32: both LPs, then one crossover for both (``polish_exact``).
@@ -361,34 +358,34 @@ def evaluate_one(
 SETTLED = 10.0
 
 
-def quality_dual_one(points, normals, mu, num_edges: int, tangents=None, contact: str = "hard", torsion=0.0):
+def quality_dual_one(points, normals, mu, model: ContactModel, tangents=None):
     """``(rows,)`` the dual vector of one grasp's quality LP (zeros where the LP is not solved to
     optimality): for :func:`out_of_equilibrium` on grasps near this one (the perturbations of a
     robust label)."""
-    lp, _ = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+    lp, _ = grasp_quality_lp(points, normals, mu, model, tangents)
     (sol,) = solve(jax.lax.stop_gradient(lp), consistent=True)
     y = jnp.where(sol.status == Status.OPTIMAL, sol.y, 0.0)
     return jnp.where(jnp.all(jnp.isfinite(y)), y, 0.0)
 
 
-def out_of_equilibrium(points, normals, mu, num_edges: int, y, tangents=None, contact: str = "hard", torsion=0.0):
+def out_of_equilibrium(points, normals, mu, model: ContactModel, y, tangents=None):
     """Whether the dual vector ``y`` (any: from :func:`quality_dual_one` of a nearby grasp) proves
     that one grasp is not in equilibrium, with no LP solved: the weak-duality bound
     :func:`quality_bound` of its quality LP is below ``-SETTLED`` margins. Then
     :func:`evaluate_one` would report it not in equilibrium, Q 0, not force-closure. ``False``
     proves nothing."""
     tol = tolerances(points.dtype)
-    lp, _ = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+    lp, _ = grasp_quality_lp(points, normals, mu, model, tangents)
     bound, slack = quality_bound(lp, jnp.asarray(y, points.dtype))
     return bound + slack < -SETTLED * tol.margin
 
 
-def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tangents=None, iterations=None,
-                restarts=None, contact: str = "hard", torsion=0.0):
+def quality_one(points, normals, mu, model: ContactModel, signed: bool = False, tangents=None, iterations=None,
+                restarts=None):
     """``(Q, LP status)`` of one grasp: Q is ``delta*`` of the quality LP, clipped at 0 unless
-    ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``restarts``,
-    ``contact``, ``torsion``: see :func:`evaluate_one`."""
-    lp, cols = grasp_quality_lp(points, normals, mu, num_edges, tangents, contact, torsion)
+    ``signed``, with envelope theorem derivatives in ``points`` and ``normals``. ``model``,
+    ``restarts``: see :func:`evaluate_one`."""
+    lp, cols = grasp_quality_lp(points, normals, mu, model, tangents)
     (sol,) = solve(jax.lax.stop_gradient(lp), iterations=iterations, consistent=True, restarts=restarts)
     tol = tolerances(points.dtype)
     polished, forced = None, False
@@ -414,14 +411,13 @@ def quality_one(points, normals, mu, num_edges: int, signed: bool = False, tange
     return value, status
 
 
-def min_weight_one(points, normals, mu, num_edges: int, origin, torque_scale, tangents=None, iterations=None,
-                   contact: str = "hard", torsion=0.0):
+def min_weight_one(points, normals, mu, model: ContactModel, origin, torque_scale, tangents=None, iterations=None):
     """``(l*, status)`` of the classical min-weight LP on all primitive wrenches of one grasp (of
     the contact model, ``_contact``), differentiable in ``points`` and ``normals`` (see
     :func:`min_weight_value`)."""
     normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    return min_weight_value(wrench_columns(points, normals, edges, contact, torsion, origin, torque_scale).wrenches,
+    edges = cone_edges(normals, mu, model.num_edges, tangents)
+    return min_weight_value(wrench_columns(points, normals, edges, model.kind, model.torsion, origin, torque_scale).wrenches,
                             iterations)
 
 

@@ -29,6 +29,29 @@ from ._wrench import cross
 CONTACTS: tuple[str, ...] = ("hard", "soft", "dexnet-soft")
 
 
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ContactModel:
+    """How every contact of a grasp transmits wrenches: one value, threaded through the
+    single-grasp functions (``_programs``, ``_closure``, ``_objectives``) instead of three loose
+    arguments.
+
+    Attributes:
+        kind: one of :data:`CONTACTS` (static).
+        num_edges: edges of a 3D linearized friction cone (static; a 2D cone has 2).
+        torsion: the torsional coefficient of ``"soft"`` (a length) and ``"dexnet-soft"`` (a
+            moment) contacts, a scalar that may be traced; 0 for hard contacts.
+    """
+
+    kind: str = dataclasses.field(default="hard", metadata={"static": True})
+    num_edges: int = dataclasses.field(default=8, metadata={"static": True})
+    torsion: jax.Array | float = 0.0
+
+    def columns_per_contact(self) -> int:
+        """Wrench columns one 3D contact contributes (:func:`columns_per_contact`)."""
+        return columns_per_contact(self.kind, self.num_edges)
+
+
 def patch_torsion(radius, mu):
     """Torsional coefficient ``(2/3) mu r`` (a length) of a circular contact patch of radius ``r``
     under uniform pressure: the largest moment about the normal per unit normal force. For

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from ._closure import min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._constants import default_iterations, tolerances
-from ._contact import columns_per_contact, wrench_columns
+from ._contact import ContactModel, columns_per_contact, wrench_columns
 from ._programs import full_rank, gram_rank3, min_weight_lp
 from ._status import StatusEnum
 from .lp import Status, warm_weight
@@ -366,11 +366,11 @@ def _critical_jvp(num_edges, contact, primals, tangents_in):
     return (mu, status, end), (dmu.astype(mu.dtype), jnp.zeros(status.shape, jax.dtypes.float0), jnp.zeros_like(end))
 
 
-def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "hard", torsion=0.0,
-                          tangents=None, iterations=None, steps=MAX_STEPS, start=None):
-    """``(mu*, status)`` of one grasp (``points, normals: (n, d)``): the smallest friction
-    coefficient at which it is force-closure (``inf`` above ``cap``), differentiable in ``points``,
-    ``normals`` and ``torsion`` by the implicit function theorem. ``steps``: most root-finding steps,
+def critical_friction_one(points, normals, cap, model: ContactModel, tangents=None, iterations=None, steps=MAX_STEPS,
+                          start=None):
+    """``(mu*, status)`` of one grasp (``points, normals: (n, d)``) under the contact ``model``: the
+    smallest friction coefficient at which it is force-closure (``inf`` above ``cap``),
+    differentiable in ``points``, ``normals`` and ``model.torsion`` by the implicit function theorem. ``steps``: most root-finding steps,
     ``iterations``: interior-point iterations per step (default the full budget; both may be
     traced); a search left open after them has status ``NOT_CONVERGED``. See the module
     docstring. With ``start`` (``(RESUME,)`` or the full state of :func:`resume_size`, see
@@ -378,6 +378,7 @@ def critical_friction_one(points, normals, cap, num_edges: int, contact: str = "
     resumes from ``start`` and ``state`` resumes it again."""
     normals = safe_normalize(normals)
     dt = points.dtype
+    num_edges, contact, torsion = model.num_edges, model.kind, model.torsion
     # Symbolic zero tangents: custom_jvp needs every differentiable argument to be an array.
     if iterations is None:
         iterations = default_iterations(min_weight_columns(points.shape[0], points.shape[1], contact, num_edges))

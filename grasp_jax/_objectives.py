@@ -17,15 +17,17 @@ and returns a scalar and a small dict of monitors.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
-from ._api import _bind, _check_common, check_contact
+from ._api import _bind, _check_common, contact_model
 from ._batch import map_grasps
 from ._closure import exact_torque_2d, min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
-from ._contact import wrench_columns
+from ._contact import ContactModel, wrench_columns
 from ._programs import SHIFT, about_first, quality_lp
 from ._validate import check_scalar
 from ._wrench import cross
@@ -73,10 +75,10 @@ def torque_margin(cols, iterations=None, best_effort: bool = False) -> jax.Array
     return jnp.where(status == Status.INFEASIBLE, FLOOR, tau.shape[0] * margin)
 
 
-def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="hard", torsion=0.0):
+def _closure(points, normals, mu, model: ContactModel, iterations, best_effort):
     normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges)
-    cols = about_first(points, normals, edges, contact, torsion)
+    edges = cone_edges(normals, mu, model.num_edges)
+    cols = about_first(points, normals, edges, model)
     delta = signed_quality(cols, edges, iterations, best_effort)
     torque = TORQUE_WEIGHT * torque_margin(cols, iterations, best_effort)
     # Where both are negative their sum, so that the torque term still pulls where delta* sits on
@@ -84,15 +86,15 @@ def _closure(points, normals, mu, num_edges, iterations, best_effort, contact="h
     return jnp.minimum(jnp.minimum(delta, torque), delta + torque), delta, torque
 
 
-def min_weight_margin(points, normals, mu, num_edges: int, center, scale, iterations=None,
-                      best_effort: bool = False, contact="hard", torsion=0.0, full=None) -> jax.Array:
+def min_weight_margin(points, normals, mu, model: ContactModel, center, scale, iterations=None,
+                      best_effort: bool = False, full=None) -> jax.Array:
     """``K l*`` of the min-weight LP on all ``K`` primitive wrenches, torques about ``center`` over
     ``scale``: > 0 iff force-closure; envelope derivatives; :data:`FLOOR` where infeasible.
     ``full``: as :func:`grasp_jax._closure.min_weight_value` (``True`` skips the rank test)."""
     normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges)
+    edges = cone_edges(normals, mu, model.num_edges)
     # Points in units of scale: torsion moments (a length times a force) are divided by it too.
-    w = wrench_columns((points - center) / scale, normals, edges, contact, torsion / scale).wrenches
+    w = wrench_columns((points - center) / scale, normals, edges, model.kind, model.torsion / scale).wrenches
     margin, status = min_weight_value(w, iterations, best_effort, full=full)
     return jnp.where(status == Status.INFEASIBLE, FLOOR, w.shape[0] * margin)
 
@@ -115,66 +117,63 @@ def dfc_energy(points, normals, center, scale, eig: bool) -> jax.Array:
     return energy + jnp.sum(jax.nn.relu(DFC_EPSILON - evals) ** 2)
 
 
-def objective_one(points, normals, mu, num_edges: int, kind: str, center, scale, iterations=None,
-                  best_effort: bool = False, contact: str = "hard", torsion=0.0):
+def objective_one(points, normals, mu, model: ContactModel, kind: str, center, scale, iterations=None,
+                  best_effort: bool = False):
     """``(value, monitors)`` of objective ``kind`` for one grasp (larger is better).
 
     Args:
         points, normals: ``(n, d)``; normals outward.
-        mu: friction coefficient; num_edges: edges per 3D cone.
+        mu: friction coefficient.
+        model: the :class:`~grasp_jax._contact.ContactModel` (the DFC energies ignore it).
         kind: one of :data:`OBJECTIVES`.
         center: ``(d,)`` the object's centre; scale: its radius (``"min_weight"`` and the DFC
             energies take torques about ``center`` in units of ``scale``).
         iterations: interior-point iterations (default from the LP size).
         best_effort: LPs unfinished after ``iterations`` give their best iterate's value (see
             :func:`grasp_jax.lp.solve`): what ``gj.optimize`` uses, with a short budget.
-        contact, torsion: the contact model (``_contact``); the DFC energies ignore it.
 
     Returns:
         ``value: ()`` and ``monitors``: ``{"delta": delta*, "torque": weighted T}`` for the closure
         objectives (about the reported ``c_1``), empty otherwise.
     """
     if kind == "closure":
-        value, delta, torque = _closure(points, normals, mu, num_edges, iterations, best_effort, contact, torsion)
+        value, delta, torque = _closure(points, normals, mu, model, iterations, best_effort)
         return value, {"delta": delta, "torque": torque}
     if kind == "closure_any":
         points, normals = jnp.asarray(points), jnp.asarray(normals)
         n = points.shape[0]
         rolled = jnp.stack([jnp.roll(jnp.arange(n), -k) for k in range(n)])
         values, deltas, torques = jax.vmap(
-            lambda idx: _closure(points[idx], normals[idx], mu, num_edges, iterations, best_effort, contact, torsion)
+            lambda idx: _closure(points[idx], normals[idx], mu, model, iterations, best_effort)
         )(rolled)
         k = jnp.argmin(values)
         return values[k], {"delta": deltas[0], "torque": torques[0]}
     if kind == "min_weight":
-        return min_weight_margin(points, normals, mu, num_edges, center, scale, iterations, best_effort, contact,
-                                 torsion), {}
+        return min_weight_margin(points, normals, mu, model, center, scale, iterations, best_effort), {}
     if kind == "signed_q":
         normals = safe_normalize(normals)
-        edges = cone_edges(normals, mu, num_edges)
-        return signed_quality(about_first(points, normals, edges, contact, torsion), edges, iterations, best_effort), {}
+        edges = cone_edges(normals, mu, model.num_edges)
+        return signed_quality(about_first(points, normals, edges, model), edges, iterations, best_effort), {}
     if kind == "friction":
-        return friction_objective(points, normals, num_edges, center, scale, iterations, best_effort, contact,
-                                  torsion), {}
+        return friction_objective(points, normals, model, center, scale, iterations, best_effort), {}
     if kind in ("dfc", "dfc_eig"):
         return -dfc_energy(points, normals, center, scale, eig=kind == "dfc_eig"), {}
     raise ValueError(f"objective must be one of {OBJECTIVES}; got {kind!r}")
 
 
-def friction_objective(points, normals, num_edges, center, scale, iterations=None, best_effort=False,
-                       contact="hard", torsion=0.0) -> jax.Array:
+def friction_objective(points, normals, model: ContactModel, center, scale, iterations=None,
+                       best_effort=False) -> jax.Array:
     """``-mu*`` where the grasp is force-closure at :data:`FRICTION_CAP`, else ``-cap + K l*(cap)``
     (see the module docstring). The search itself always has the full interior-point budget."""
     from ._friction import FrictionStatus, critical_friction_one
 
     points = jnp.asarray(points)
     cap = jnp.asarray(FRICTION_CAP, points.dtype)
-    mu_star, status = critical_friction_one(points, normals, cap, num_edges, contact, torsion)
+    mu_star, status = critical_friction_one(points, normals, cap, model)
     # No rank test here (full=True): the search has made its own, and a second eigendecomposition
     # in the program could deadlock XLA's CPU thread pool (``_friction._spans``); only l* <= 0 is
     # used, and a rank-deficient set is not force-closure either way.
-    margin = min_weight_margin(points, normals, cap, num_edges, center, scale, iterations, best_effort, contact,
-                               torsion, full=True)
+    margin = min_weight_margin(points, normals, cap, model, center, scale, iterations, best_effort, full=True)
     found = status != FrictionStatus.ABOVE_CAP
     return jnp.where(found, -jnp.where(found, mu_star, 0.0), -cap + jnp.minimum(margin, 0.0))
 
@@ -188,10 +187,9 @@ def is_positive(value, dtype) -> jax.Array:
 # The batched public function.
 
 
-def _objective_single(points, normals, shared, *, num_edges, kind, iterations, contact):
-    mu, torsion, center, scale = shared
-    return objective_one(points, normals, mu, num_edges, kind, center, scale, iterations, contact=contact,
-                         torsion=torsion)[0]
+def _objective_single(points, normals, shared, *, kind, iterations):
+    mu, model, center, scale = shared
+    return objective_one(points, normals, mu, model, kind, center, scale, iterations)[0]
 
 
 def objective(
@@ -226,12 +224,13 @@ def objective(
     points, normals, _, batch, mu, num_edges, scope = _check_common(points, normals, mu, num_edges, None, torsion)
     scale = check_scalar("scale", scale)
     d = points.shape[-1]
-    contact, torsion = check_contact(contact, torsion, d)
+    model = contact_model(contact, torsion, num_edges, d)
     with scope:
         center = jnp.zeros(d, points.dtype) if center is None else jnp.asarray(center, points.dtype)
         if center.shape != (d,):
             raise ValueError(f"center must have shape ({d},); got {center.shape}")
-        fn = _bind(_objective_single, num_edges=num_edges, kind=kind, iterations=iterations, contact=contact)
-        shared = (jnp.asarray(mu, points.dtype), jnp.asarray(torsion, points.dtype), center,
+        fn = _bind(_objective_single, kind=kind, iterations=iterations)
+        model = dataclasses.replace(model, torsion=jnp.asarray(model.torsion, points.dtype))
+        shared = (jnp.asarray(mu, points.dtype), model, center,
                   jnp.asarray(scale, points.dtype))
         return map_grasps(fn, (points, normals), shared, batch)

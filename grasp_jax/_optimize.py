@@ -27,9 +27,10 @@ import optax
 
 from . import _noise
 from . import surfaces as _surfaces
-from ._api import _bind, _lp_columns, check_contact, evaluate
+from ._api import _bind, _lp_columns, contact_model, evaluate
 from ._batch import map_grasps
 from ._constants import DEFAULT_NUM_EDGES, first_pass_iterations, tolerances
+from ._contact import ContactModel
 from ._objectives import OBJECTIVES, objective_one
 from ._precision import float64_scope
 from ._result import GraspEvaluation
@@ -196,18 +197,18 @@ def distinct_grasps(points: np.ndarray, quality: np.ndarray, cell: float, mask=N
 # One start, one segment of steps.
 
 
-def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, total: int, monitor: bool,
-             iterations: int, contact: str = "hard", noise_flags=None):
+def _segment(*args, treedef, kind: str, optimizer, length: int, total: int, monitor: bool, iterations: int,
+             noise_flags=None):
     """Advance one start ``length`` steps. ``args``: the leaves of the start's state
     ``(contacts, optimizer state, travel, best contacts, best objective, best Q)`` (built in
     :func:`_run`; ``travel: (n, d)`` is the sum of the updates so far, the ``params`` the optimizer
-    sees), then ``shared = (surface, (mu, torsion), offset, robust)`` (``robust``: the fixed
+    sees), then ``shared = (surface, (mu, model), offset, robust)`` (``robust``: the fixed
     perturbations of ``objective="robust"``, :class:`grasp_jax._noise.Reparameterized`, else
     ``None``; ``noise_flags``: their static structure).
 
     Returns ``(state leaves, values (length,), qualities (length,))``.
     """
-    *leaves, (surface, (mu, torsion), offset, robust) = args
+    *leaves, (surface, (mu, model), offset, robust) = args
     contacts, opt_state, travel, best, best_value, best_q = jax.tree_util.tree_unflatten(treedef, leaves)
     n, d = contacts.face.shape[0], surface.dim
     dtype = contacts.coords.dtype
@@ -217,14 +218,14 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
     def value(v, contacts):
         if kind == ROBUST:
             def closure(points, normals, mu_per_contact):
-                return objective_one(points, normals, mu_per_contact, num_edges, "closure", surface.center,
-                                     surface.scale, iterations, best_effort=True, contact=contact, torsion=torsion)[0]
+                return objective_one(points, normals, mu_per_contact, model, "closure", surface.center,
+                                     surface.scale, iterations, best_effort=True)[0]
 
             mean, _ = _noise.robust_value(surface, contacts, v, mu, robust, closure, flags=noise_flags)
             return mean, {}
         points, normals = jax.vmap(surface.chart)(contacts, v * surface.scale)
-        return objective_one(points, normals, mu, num_edges, kind, surface.center, surface.scale,
-                             iterations, best_effort=True, contact=contact, torsion=torsion)
+        return objective_one(points, normals, mu, model, kind, surface.center, surface.scale, iterations,
+                             best_effort=True)
 
     def step(carry, i):
         contacts, opt_state, travel, best, best_value, best_q = carry
@@ -238,8 +239,8 @@ def _segment(*args, treedef, kind: str, num_edges: int, optimizer, length: int, 
             q = jnp.where(val > margin, mon["delta"], 0.0)
         elif monitor:
             points, normals = jax.vmap(surface.embed)(contacts)
-            closure, aux = objective_one(points, normals, mu, num_edges, "closure", surface.center, surface.scale,
-                                         iterations, best_effort=True, contact=contact, torsion=torsion)
+            closure, aux = objective_one(points, normals, mu, model, "closure", surface.center, surface.scale,
+                                         iterations, best_effort=True)
             q = jnp.where(closure > margin, aux["delta"], 0.0)
         else:
             q = jnp.zeros((), dtype)
@@ -398,8 +399,7 @@ def optimize(
     fingers = check_int("fingers", fingers, 2)
     steps = check_int("steps", steps)
     mu = check_scalar("mu", mu)
-    num_edges = check_num_edges(num_edges)
-    contact, torsion = check_contact(contact, torsion, surface.dim)
+    model = contact_model(contact, torsion, check_num_edges(num_edges), surface.dim)
     if iterations is not None:
         iterations = check_int("iterations", iterations)
     robust_samples = _check_objective(objective, noise, robust_samples)
@@ -426,11 +426,11 @@ def optimize(
             draw_key = jax.random.fold_in(key if init_points is None else check_key(key, "gj.optimize"), 24)
             robust = (_noise.reparameterized(noise, draw_key, robust_samples, fingers, surface.dim,
                                              float(surface.scale), dtype), noise._flags())
-        result = _run(surface, contacts, mu, num_edges, objective, optimizer, steps, monitor, iterations, progress,
-                      contact, torsion, robust)
+        result = _run(surface, contacts, mu, model, objective, optimizer, steps, monitor, iterations, progress,
+                      robust)
         points, normals_out, best_value, history, qualities, path = result
-        evaluation = evaluate(points, normals_out, mu=mu, num_edges=num_edges, contact=contact,
-                              torsion=None if contact == "hard" else torsion)
+        evaluation = evaluate(points, normals_out, mu=mu, num_edges=model.num_edges, contact=model.kind,
+                              torsion=None if model.kind == "hard" else model.torsion)
     reason = _end_reasons(np.asarray(evaluation.force_closure), history)
     return OptimizeResult(
         points=points, normals=normals_out, evaluation=evaluation, objective=best_value, history=history,
@@ -477,8 +477,8 @@ def _initial_contacts(surface, key, starts: int, fingers: int, init_points, dtyp
     )
 
 
-def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iterations, progress, contact="hard",
-         torsion=0.0, robust=None):
+def _run(surface, contacts, mu, model: ContactModel, kind, optimizer, steps, monitor, iterations, progress,
+         robust=None):
     """All starts through ``steps`` steps in compiled calls of equal length (:data:`SEGMENTS`,
     :data:`MIN_SEGMENT`)."""
     starts, n = contacts.face.shape[:2]
@@ -489,11 +489,11 @@ def _run(surface, contacts, mu, num_edges, kind, optimizer, steps, monitor, iter
     state = (contacts, opt_state, travel, contacts, jnp.full((starts,), -jnp.inf, dtype), jnp.zeros((starts,), dtype))
     leaves, treedef = jax.tree_util.tree_flatten(state)
     length = math.ceil(steps / min(SEGMENTS, max(1, steps // MIN_SEGMENT)))
-    budget = iterations or first_pass_iterations(_lp_columns(n, d, num_edges, contact))
+    budget = iterations or first_pass_iterations(_lp_columns(n, d, model.num_edges, model.kind))
     draws, flags = robust if robust is not None else (None, None)
-    fn = _bind(_segment, treedef=treedef, kind=kind, num_edges=num_edges, optimizer=optimizer,
-               length=length, total=steps, monitor=monitor, iterations=budget, contact=contact, noise_flags=flags)
-    mu = (jnp.asarray(mu, dtype), jnp.asarray(torsion, dtype))
+    fn = _bind(_segment, treedef=treedef, kind=kind, optimizer=optimizer, length=length, total=steps,
+               monitor=monitor, iterations=budget, noise_flags=flags)
+    mu = (jnp.asarray(mu, dtype), dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype)))
     values, qualities = [], []
     embed = jax.vmap(jax.vmap(surface.embed))
     path = [np.asarray(embed(contacts)[0])]

@@ -8,9 +8,12 @@ import jax.numpy as jnp
 
 from ._cones import cone_edges, safe_normalize
 from ._constants import tolerances
-from ._contact import Columns, columns
+from ._contact import Columns, ContactModel, columns
 from ._wrench import cross
 from .lp import LP, LPSolution, Status
+
+#: Hard contacts with the default cone.
+HARD = ContactModel()
 
 
 def arm_scale(points: jax.Array) -> jax.Array:
@@ -39,10 +42,10 @@ def torques_about_first(points: jax.Array, edges: jax.Array) -> jax.Array:
 SHIFT = 2.0
 
 
-def about_first(points: jax.Array, normals: jax.Array, edges: jax.Array, contact: str = "hard", torsion=0.0) -> Columns:
+def about_first(points: jax.Array, normals: jax.Array, edges: jax.Array, model: ContactModel = HARD) -> Columns:
     """The wrench columns of a contact model (``_contact``) with torques about ``c_1`` divided by
     the grasp's size: the columns of the quality and torque LPs."""
-    return columns(edges, torques_about_first(points, edges), normals, contact, torsion, arm_scale(points))
+    return columns(edges, torques_about_first(points, edges), normals, model.kind, model.torsion, arm_scale(points))
 
 
 def quality_lp(cols: Columns, edges: jax.Array) -> LP:
@@ -69,13 +72,12 @@ def quality_lp(cols: Columns, edges: jax.Array) -> LP:
     return LP(A, b, c)
 
 
-def grasp_quality_lp(points, normals, mu, num_edges: int, tangents=None, contact: str = "hard", torsion=0.0
-                     ) -> tuple[LP, Columns]:
+def grasp_quality_lp(points, normals, mu, model: ContactModel, tangents=None) -> tuple[LP, Columns]:
     """The quality LP of one grasp from its contacts (normals normalized, cone edges, columns
     about ``c_1``), and those columns."""
     normals = safe_normalize(normals)
-    edges = cone_edges(normals, mu, num_edges, tangents)
-    cols = about_first(points, normals, edges, contact, torsion)
+    edges = cone_edges(normals, mu, model.num_edges, tangents)
+    cols = about_first(points, normals, edges, model)
     return quality_lp(cols, edges), cols
 
 

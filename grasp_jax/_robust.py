@@ -18,15 +18,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _closure
-from ._api import MIN_WEIGHT_BLOCK, _bind, _check_common, _passes, _unfinished, check_contact
+from . import _closure, _noise
+from ._api import MIN_WEIGHT_BLOCK, _bind, _check_common, _passes, _unfinished, contact_model
 from ._batch import Retry, Staged, map_grasps, pad_rows
 from ._constants import DEFAULT_NUM_EDGES
-from ._noise import (
-    Noise,
-    draws,
-    perturb_all,
-)
+from ._contact import ContactModel
+from ._noise import Noise, perturb_all
 from ._validate import check_int, check_key, check_scalar, is_traced
 from .lp import Status
 from .surfaces import as_surface
@@ -37,37 +34,34 @@ ROWS = 65536
 # Scoring: the single-grasp functions of evaluate and min_weight, with per-contact friction.
 
 
-def _evaluate_single(points, normals, tangents, mu, shared, *, num_edges, torque_test, contact):
-    torsion, iterations, restarts = shared  # traced: every pass runs one compiled program
-    return _closure.evaluate_one(points, normals, mu, num_edges, torque_test, tangents, iterations, restarts,
-                                 contact, torsion)
+def _evaluate_single(points, normals, tangents, mu, shared, *, torque_test):
+    model, iterations, restarts = shared  # traced: every pass runs one compiled program
+    return _closure.evaluate_one(points, normals, mu, model, torque_test, tangents, iterations, restarts)
 
 
-def _torque_stage(points, normals, tangents, mu, shared, *, num_edges, contact):
-    torsion, iterations, restarts = shared
-    return _closure.torque_stage(points, normals, mu, num_edges, tangents, iterations, restarts, contact, torsion)
+def _torque_stage(points, normals, tangents, mu, shared):
+    model, iterations, restarts = shared
+    return _closure.torque_stage(points, normals, mu, model, tangents, iterations, restarts)
 
 
-def _quality_stage(points, normals, tangents, mu, torques, shared, *, num_edges, contact):
-    torsion, iterations, restarts = shared
-    return _closure.quality_stage(points, normals, mu, num_edges, torques, tangents, iterations, restarts, contact,
-                                  torsion)
+def _quality_stage(points, normals, tangents, mu, torques, shared):
+    model, iterations, restarts = shared
+    return _closure.quality_stage(points, normals, mu, model, torques, tangents, iterations, restarts)
 
 
-def _dual_single(points, normals, tangents, mu, shared, *, num_edges, contact):
-    (torsion,) = shared
-    return _closure.quality_dual_one(points, normals, mu, num_edges, tangents, contact, torsion)
+def _dual_single(points, normals, tangents, mu, shared):
+    (model,) = shared
+    return _closure.quality_dual_one(points, normals, mu, model, tangents)
 
 
-def _settled_single(points, normals, tangents, mu, y, shared, *, num_edges, contact):
-    (torsion,) = shared
-    return _closure.out_of_equilibrium(points, normals, mu, num_edges, y, tangents, contact, torsion)
+def _settled_single(points, normals, tangents, mu, y, shared):
+    (model,) = shared
+    return _closure.out_of_equilibrium(points, normals, mu, model, y, tangents)
 
 
-def _min_weight_single(points, normals, tangents, mu, shared, *, num_edges, contact):
-    torsion, origin, torque_scale = shared
-    return _closure.min_weight_one(points, normals, mu, num_edges, origin, torque_scale, tangents, None,
-                                   contact, torsion)
+def _min_weight_single(points, normals, tangents, mu, shared):
+    model, origin, torque_scale = shared
+    return _closure.min_weight_one(points, normals, mu, model, origin, torque_scale, tangents, None)
 
 
 @jax.tree_util.register_dataclass
@@ -178,7 +172,7 @@ class _Perturber:
         self.total = int(np.prod(batch, dtype=np.int64))
         self.points = points.reshape(self.total, n, d)
         self.normals = normals.reshape(self.total, n, d)
-        self.draw = draws(key, self.samples, n, d, self.dtype)
+        self.draw = _noise.draws(key, self.samples, n, d, self.dtype)
         self.per = max(1, ROWS // self.samples)  # grasps per slice: ROWS perturbed grasps
         self.sigmas = np.array([noise.position * self.scale, noise.normal, noise.friction[0], noise.friction[1],
                                 noise.friction_sigma, noise.rotation, noise.translation * self.scale], self.dtype)
@@ -305,10 +299,10 @@ def robust(
     """
     samples, quantile = check_labels(samples, quantile, torque_test)
     perturber = _Perturber(obj, points, normals, mu, noise, key, samples, num_edges, torsion, surface_normals)
-    contact, torsion = check_contact(contact, torsion, perturber.points.shape[-1])
+    model = contact_model(contact, torsion, perturber.num_edges, perturber.points.shape[-1])
     torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
-    result, stuck = label(perturber, quantile=quantile, torque_test=torque_test, contact=contact, torsion=torsion,
-                           margin=margin, torque_scale=torque_scale, progress=progress)
+    result, stuck = label(perturber, quantile=quantile, torque_test=torque_test, model=model, margin=margin,
+                          torque_scale=torque_scale, progress=progress)
     warn_unconverged(result, stuck, "robust")
     return result
 
@@ -334,16 +328,15 @@ def warn_unconverged(result: RobustResult, stuck: int, what: str) -> None:
                       "(margin 0); see RobustResult.unconverged", RuntimeWarning, stacklevel=3)
 
 
-def _nominal_duals(perturber, contact: str, torsion) -> np.ndarray:
+def _nominal_duals(perturber, model: ContactModel) -> np.ndarray:
     """``(total, rows)`` the quality LP's dual of each nominal grasp of ``perturber``
     (``_closure.quality_dual_one``; zeros where unsolved): what screens its perturbations."""
     points, normals = perturber.points, perturber.normals
     mu = np.full(points.shape[:-1], perturber.mu, perturber.dtype)
-    fn = _bind(_dual_single, num_edges=perturber.num_edges, contact=contact)
-    return np.asarray(map_grasps(fn, (points, normals, None, mu), (torsion,), (perturber.total,)))
+    return np.asarray(map_grasps(_dual_single, (points, normals, None, mu), (model,), (perturber.total,)))
 
 
-def label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_scale, progress):
+def label(perturber, *, quantile, torque_test, model: ContactModel, margin, torque_scale, progress):
     """Score the perturbations of ``perturber`` and reduce them to a :class:`RobustResult`: the one
     scoring path of :func:`robust` and :func:`grasp_jax.grippers.robust_jaws`.
 
@@ -356,15 +349,11 @@ def label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_
     not as unconverged. Returns ``(result, min-weight LPs not converged)``.
     """
     dtype, total, samples = perturber.dtype, perturber.total, perturber.samples
-    num_edges = perturber.num_edges
     if _closure.staged(perturber.points, torque_test):  # as gj.evaluate: the quality LP where needed
-        evaluate_fn = Staged(_bind(_torque_stage, num_edges=num_edges, contact=contact),
-                             _bind(_quality_stage, num_edges=num_edges, contact=contact))
+        evaluate_fn = Staged(_torque_stage, _quality_stage)
     else:
-        evaluate_fn = _bind(_evaluate_single, num_edges=num_edges, torque_test=torque_test, contact=contact)
-    weight_fn = _bind(_min_weight_single, num_edges=num_edges, contact=contact)
-    settled_fn = _bind(_settled_single, num_edges=num_edges, contact=contact)
-    budget, retry = _passes(perturber.points, num_edges, None, contact)
+        evaluate_fn = _bind(_evaluate_single, torque_test=torque_test)
+    budget, retry = _passes(perturber.points, model, None)
     per = perturber.per
     fields = {name: [] for name in RobustResult.COLUMNS}
     starts = range(0, total, per)
@@ -375,11 +364,11 @@ def label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_
     stuck = 0  # min-weight LPs that did not converge
     with perturber.scope:
         perturber.start()
-        t = jnp.asarray(torsion, dtype)
-        shared = (t, *budget)
-        retries = tuple(Retry((t, *pass_), _unfinished) for pass_ in retry)
-        weight_shared = (t, jnp.asarray(perturber.center, dtype), jnp.asarray(torque_scale, dtype))
-        duals = _nominal_duals(perturber, contact, t)
+        typed = dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype))
+        shared = (typed, *budget)
+        retries = tuple(Retry((typed, *pass_), _unfinished) for pass_ in retry)
+        weight_shared = (typed, jnp.asarray(perturber.center, dtype), jnp.asarray(torque_scale, dtype))
+        duals = _nominal_duals(perturber, typed)
         for start in starts:
             stop = min(start + per, total)
             g = stop - start
@@ -388,7 +377,7 @@ def label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_
             # proves out of equilibrium is not force-closure, Q 0, margin 0, with no LP solved;
             # only the others ("live") are scored, gathered into full blocks.
             y = np.broadcast_to(duals[start:stop, None], (g, samples, duals.shape[-1]))
-            settled = np.asarray(map_grasps(settled_fn, (pp, nn, None, mm, y), (t,), (g, samples)))
+            settled = np.asarray(map_grasps(_settled_single, (pp, nn, None, mm, y), (typed,), (g, samples)))
             if ok is not None:
                 settled = settled | ~ok
             live = np.flatnonzero(~settled.reshape(-1))
@@ -408,7 +397,7 @@ def label(perturber, *, quantile, torque_test, contact, torsion, margin, torque_
             if margin:
                 l_star, open_ = np.zeros(g * samples, dtype), np.zeros(g * samples, bool)
                 if len(live):
-                    l_live, status = map_grasps(weight_fn, gathered, weight_shared, (len(live),),
+                    l_live, status = map_grasps(_min_weight_single, gathered, weight_shared, (len(live),),
                                                 block=MIN_WEIGHT_BLOCK)
                     l_star[live] = np.maximum(np.asarray(l_live), 0.0)
                     open_[live] = np.asarray(status) == Status.NOT_CONVERGED

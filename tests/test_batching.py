@@ -6,12 +6,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _grasps import MU, grasps, sample_box, sample_cylinder, sample_sphere
 
 import grasp_jax as gj
 import grasp_jax._api as api
 from grasp_jax import _batch, reference
-
-from _grasps import MU, grasps, sample_box, sample_cylinder, sample_sphere
+from grasp_jax._contact import ContactModel
 
 N, D = 4, 3  # every batch below has this grasp shape: the concrete path compiles once (bucket 256)
 
@@ -113,8 +113,8 @@ def test_float32_inputs(batch):
 
 def _full_budget(p, n, chunk, progress=False):
     """``evaluate``'s single-grasp function with the full budget, mapped in chunks of ``chunk``."""
-    fn = api._bind(api._evaluate_single, num_edges=8, torque_test="exact")
-    shared = (np.asarray(MU), np.int32(api.default_iterations(api._lp_columns(N, D, 8))),
+    fn = api._bind(api._evaluate_single, torque_test="exact")
+    shared = ((np.asarray(MU), ContactModel(num_edges=8)), np.int32(api.default_iterations(api._lp_columns(N, D, 8))),
               np.int32(len(api.tolerances(np.float64).restarts)))
     return _batch.map_grasps(fn, (p, n, None), shared, (len(p),), chunk=chunk, progress=progress)
 
@@ -283,7 +283,7 @@ def test_staged_evaluate_equals_one_stage():
     skipped = np.asarray(ev.iterations) == 0
     assert 0.2 < skipped.mean() < 0.9
     # The traced path runs both stages on every grasp.
-    one = jax.jit(jax.vmap(lambda a, b: gj._closure.evaluate_one(a, b, MU, 8)))(p, n)
+    one = jax.jit(jax.vmap(lambda a, b: gj._closure.evaluate_one(a, b, MU, ContactModel(num_edges=8))))(p, n)
     for name in ("force_closure", "equilibrium", "torque_span", "quality_status", "torque_status"):
         np.testing.assert_array_equal(np.asarray(getattr(ev, name)), np.asarray(getattr(one, name)), err_msg=name)
     for name in ("quality", "delta", "torque_margin", "certificate"):

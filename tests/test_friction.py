@@ -9,13 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _grasps import grasps, sample_box, sample_cylinder, unit
 
 import grasp_jax as gj
 from grasp_jax import reference
-
 from grasp_jax._api import GRASPNET_FRICTIONS
-
-from _grasps import grasps, sample_box, sample_cylinder, unit
 
 FOUND, ABOVE_CAP, FRICTIONLESS = gj.FrictionStatus.FOUND, gj.FrictionStatus.ABOVE_CAP, gj.FrictionStatus.FRICTIONLESS
 SAMPLERS = {"box": sample_box, "cylinder": sample_cylinder}
@@ -109,10 +107,11 @@ def test_second_pass_resumes_the_first_pass_bracket():
     state it ended with (what ``gj.critical_friction``'s second pass does) finds the ``mu*`` of a
     search run whole from ``[0, cap]``."""
     from grasp_jax import _friction
+    from grasp_jax._contact import ContactModel
 
     points, normals = _batch("cylinder", 4, 24, seed=11)
     run = jax.jit(jax.vmap(lambda p, q, steps, its, start: _friction.critical_friction_one(
-        p, q, 4.0, 8, steps=steps, iterations=its, start=start), in_axes=(0, 0, None, None, 0)))
+        p, q, 4.0, ContactModel(num_edges=8), steps=steps, iterations=its, start=start), in_axes=(0, 0, None, None, 0)))
     fresh = jnp.zeros((len(points), _friction.RESUME))
     _, first, state = run(points, normals, 2, 10, fresh)
     mu, status, _ = run(points, normals, 64, 30, state)

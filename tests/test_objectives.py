@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _jit import jit
 
 import grasp_jax as gj
 from grasp_jax import _objectives, reference
-
-from _jit import jit
+from grasp_jax._contact import ContactModel
 
 MU, M = 0.364, 4
 CENTER3 = np.zeros(3)
@@ -52,7 +52,8 @@ def _square_grasps(rng, count, n):
 def _objective(kind, d):
     """The batched objective ``kind`` in ``d`` dimensions, jitted once per kind and dimension."""
     center = np.zeros(d)
-    return jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, center, 1.0)[0]))
+    model = ContactModel(num_edges=M)
+    return jit(jax.vmap(lambda p, nr: _objectives.objective_one(p, nr, MU, model, kind, center, 1.0)[0]))
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +135,8 @@ def test_vmap_equals_a_loop(sphere_set, sphere_values):
     p, nr, _ = sphere_set
     for kind in KINDS:
         batched = np.asarray(_value_and_grad(kind, 3)(p[:GRAD_ROWS], nr[:GRAD_ROWS])[0])[:5]
-        one = jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, M, kind, CENTER3, 1.0)[0])
+        model = ContactModel(num_edges=M)
+        one = jit(lambda a, b, kind=kind: _objectives.objective_one(a, b, MU, model, kind, CENTER3, 1.0)[0])
         loop = [one(p[i], nr[i]) for i in range(5)]
         np.testing.assert_allclose(batched, loop, rtol=1e-9, atol=1e-12, err_msg=kind)
         if kind in ("closure", "closure_any", "min_weight"):
@@ -158,7 +160,7 @@ GRAD_ROWS = 2 * 2 * 4 * 3 + 1
 @functools.cache
 def _value_and_grad(kind, d):
     """Batched value and gradient in points and normals, compiled once per objective."""
-    one = lambda p, nr: _objectives.objective_one(p, nr, MU, M, kind, np.zeros(d), 1.0)[0]
+    one = lambda p, nr: _objectives.objective_one(p, nr, MU, ContactModel(num_edges=M), kind, np.zeros(d), 1.0)[0]
     return jit(jax.vmap(jax.value_and_grad(one, argnums=(0, 1))))
 
 
@@ -255,7 +257,8 @@ def test_closure_has_no_plateau_on_the_quality_floor(sphere_set, sphere_values):
     the torque margin even where ``-1 < 4 T < 0`` (the plain minimum was the constant -1 there),
     with a gradient that finite differences confirm."""
     p, nr, _ = sphere_set
-    monitors = jit(jax.vmap(lambda a, b: _objectives.objective_one(a, b, MU, M, "closure", CENTER3, 1.0)))
+    model = ContactModel(num_edges=M)
+    monitors = jit(jax.vmap(lambda a, b: _objectives.objective_one(a, b, MU, model, "closure", CENTER3, 1.0)))
     value, mon = monitors(p[:120], nr[:120])
     value, delta, torque = map(np.asarray, (value, mon["delta"], mon["torque"]))
     np.testing.assert_allclose(value, sphere_values("closure")[:120], atol=1e-12)

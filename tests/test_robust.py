@@ -9,11 +9,11 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
+from _grasps import MU
 
 import grasp_jax as gj
 from grasp_jax import _noise, objects, surfaces
-
-from _grasps import MU
+from grasp_jax._contact import ContactModel
 
 N = 4
 NOISE = gj.Noise(position=0.03, normal=0.05, rotation=0.03, translation=0.01)
@@ -81,8 +81,8 @@ def test_p_fc_equals_a_loop_of_evaluate_over_the_same_draws(box, box_grasps):
     from grasp_jax import _closure
 
     with jax.enable_x64(True):
-        duals = jax.vmap(lambda a, b: _closure.quality_dual_one(a, b, MU, 8))(p, n)
-        settled = np.asarray(jax.vmap(jax.vmap(lambda a, b, y: _closure.out_of_equilibrium(a, b, MU * 0.8, 8, y),
+        duals = jax.vmap(lambda a, b: _closure.quality_dual_one(a, b, MU, ContactModel(num_edges=8)))(p, n)
+        settled = np.asarray(jax.vmap(jax.vmap(lambda a, b, y: _closure.out_of_equilibrium(a, b, MU * 0.8, ContactModel(num_edges=8), y),
                                                in_axes=(0, 0, None)))(pp, nn, duals))
     assert 0.05 < settled.mean() < 0.95
     for g in range(len(p)):  # brute force: one evaluate per grasp, over its 16 perturbations

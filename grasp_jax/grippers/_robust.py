@@ -24,6 +24,7 @@ import numpy as np
 from .. import _noise, _robust
 from .._api import _check_common, check_contact
 from .._batch import pad_rows
+from .._contact import ContactModel
 from .._validate import check_key, check_scalar, is_traced
 from ..objects._mesh import center_radius
 from ._antipodal import _frame
@@ -218,8 +219,9 @@ def robust_jaws(
     contact, torsion = check_contact(contact, torsion, 3)
     perturber = _JawPerturber(mesh, centers, axes, widths, approaches, mu, noise, key, samples, gripper, collision,
                               num_edges, torsion)
+    model = ContactModel(contact, perturber.num_edges, torsion)
     torque_scale = check_scalar("torque_scale", perturber.scale if torque_scale is None else torque_scale)
-    result, stuck = _robust.label(perturber, quantile=quantile, torque_test=torque_test, contact=contact,
-                                   torsion=torsion, margin=margin, torque_scale=torque_scale, progress=progress)
+    result, stuck = _robust.label(perturber, quantile=quantile, torque_test=torque_test, model=model, margin=margin,
+                                  torque_scale=torque_scale, progress=progress)
     _robust.warn_unconverged(result, stuck, "robust_jaws")
     return result
