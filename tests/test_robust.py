@@ -256,8 +256,6 @@ def test_robust_objective_scores_the_perturbed_contacts_of_robust():
     derivative in the chart displacement is that of the objective there (finite differences)."""
     import jax.numpy as jnp
 
-    from grasp_jax import _robust
-
     glass = objects.load("glass")
     surface = surfaces.for_object(glass, normals="flat")
     p, n = _grasps(glass, 1, seed=5)
