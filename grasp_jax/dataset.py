@@ -216,7 +216,8 @@ def config_of(*, fingers: int, num: int, seed: int, scheme: str, mu: float, num_
     return json.loads(json.dumps(config))  # as the manifest reads back
 
 
-def _load(entry: ObjectEntry):
+def load_entry(entry: ObjectEntry):
+    """The object of one dataset entry, scaled as its manifest says."""
     from . import objects
 
     obj = objects.load(entry.spec)
@@ -228,6 +229,19 @@ def _load(entry: ObjectEntry):
     if obj.dim != 3:
         raise DatasetError(f"{entry.spec}: a {obj.dim}D object; a dataset's objects are 3D meshes or shapes")
     return obj
+
+
+def parts(out) -> list[tuple[ObjectEntry, Path]]:
+    """The done objects of the dataset at ``out`` (every shard's), each as its entry and its part."""
+    out = Path(out)
+    if not (out / MANIFEST).is_file() and not (out / RECORDS).is_dir():
+        raise DatasetError(f"{str(out)!r} is not a grasp_jax dataset (no {MANIFEST})")
+    found = []
+    for name, record in sorted(folder.records(out).items()):
+        if record.get("status") == "done" and record.get("part"):
+            entry = ObjectEntry(name, record["spec"], float(record.get("scale", 1.0)))
+            found.append((entry, out / record["part"]))
+    return found
 
 
 def _one_line(exc: BaseException) -> str:
@@ -406,7 +420,7 @@ def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -
     record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
     path = part_path(out, entry.name)
     try:
-        obj = _load(entry)
+        obj = load_entry(entry)
         path.parent.mkdir(parents=True, exist_ok=True)
         folder.clean_temporaries(path.parent)
         labels = None if robust is None else dataclasses.replace(robust, obj=obj)
@@ -474,7 +488,7 @@ def _build_one_hand(entry: ObjectEntry, out: Path, hand, **settings) -> dict:
     record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
     path = part_path(out, entry.name)
     try:
-        obj = _load(entry)
+        obj = load_entry(entry)
         path.parent.mkdir(parents=True, exist_ok=True)
         folder.clean_temporaries(path.parent)
         result = hands.synthesize(hand, obj, **settings)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -179,3 +181,26 @@ def test_hand_grasps():
     with pytest.raises(ValueError, match="joints"):
         res.joints = res.joints[:, :-1]
         sim.simulate_hand(hand, ball, res, workers=1)
+
+
+def test_simulate_command_adds_the_columns(tmp_path, box, capsys):
+    """``grasp-jax simulate FILE``: the jaw file gains the columns in place (the centred grasp
+    holds, the one beside the box does not); a file without jaw or hand columns is one error line."""
+    from grasp_jax.cli import main
+
+    mesh_file = tmp_path / "box.stl"
+    box.export(mesh_file)
+    c, a, p, w = _poses([[0, 0, 0], [0, 0.09, 0]], [1, 0, 0], [0, 0, 1], 0.07)
+    points = np.stack([c - 0.025 * a, c + 0.025 * a], axis=1)
+    normals = np.stack([-a, a], axis=1)
+    meta = storage.metadata(object=str(mesh_file), gripper=GRIPPER.to_dict())
+    f = tmp_path / "jaws.npz"
+    np.savez(f, points=points, normals=normals, center=c, axis=a, approach=p, width=w,
+             metadata=np.array(json.dumps(meta)))
+    assert main(["simulate", str(f), "--workers", "1", "-q"]) == 0
+    cols = storage.ResultFile(f).read(["sim_success", "sim_status"])
+    np.testing.assert_array_equal(cols["sim_success"], [True, False])
+    plain = tmp_path / "plain.npz"
+    np.savez(plain, points=points, normals=normals, metadata=np.array(json.dumps(meta)))
+    assert main(["simulate", str(plain), "-q"]) == 2
+    assert "center" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from ._columns import DIRECTION_COLUMNS as DIRECTION_COLUMNS
 from ._columns import SIM_COLUMNS as SIM_COLUMNS
+from ._columns import add_hand_sim_columns as add_hand_sim_columns
 from ._columns import add_sim_columns as add_sim_columns
 from ._columns import sim_columns as sim_columns
 from ._hands import simulate_hand as simulate_hand
@@ -40,6 +41,7 @@ __all__ = [
     "SimResult",
     "SimStatus",
     "add_sim_columns",
+    "add_hand_sim_columns",
     "cache_dir",
     "decompose",
     "sim_columns",

@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from ..grippers import ParallelJaw
 from ..storage import PARQUET_KEY, ResultFile, check_output_path, write_atomically
 from ..storage import metadata as stamp
+from ._hands import simulate_hand
 from ._jaws import DEFAULT_GRIPPER, body_gripper, simulate_jaws
 from ._protocol import DIRECTIONS, Protocol, SimResult
 
@@ -25,6 +27,8 @@ DIRECTION_COLUMNS = tuple(f"sim_{'pos' if d[0] == '+' else 'neg'}_{d[1]}" for d 
 SIM_COLUMNS = ("sim_success", "sim_status") + DIRECTION_COLUMNS
 #: The columns a result file needs for a jaw simulation.
 JAW_COLUMNS = ("center", "axis", "approach", "width")
+#: The columns a result file needs for a hand simulation.
+HAND_COLUMNS = ("position", "quaternion", "joints", "pregrasp", "squeeze")
 
 
 def sim_columns(result: SimResult) -> dict[str, np.ndarray]:
@@ -84,9 +88,7 @@ def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | 
     if missing:
         raise ValueError(f"{str(source.path)!r} has no {missing}: simulating jaw grasps needs the columns "
                          f"{list(JAW_COLUMNS)} (grasp-jax sample --gripper parallel-jaw writes them)")
-    target = source.path if out is None else check_output_path(out)
-    if target.suffix.lower() != source.path.suffix.lower():
-        raise ValueError(f"out must have the format of {str(source.path)!r}; got {str(target)!r}")
+    target = _target(source, out)
     if gripper is None and isinstance(source.metadata.get("gripper"), dict):
         gripper = ParallelJaw.from_dict(source.metadata["gripper"])
     gripper = DEFAULT_GRIPPER if gripper is None else gripper
@@ -94,10 +96,53 @@ def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | 
     arrays = source.read()
     result = simulate_jaws(mesh, arrays["center"], arrays["axis"], arrays["approach"], arrays["width"],
                            gripper=gripper, protocol=protocol, seed=seed, workers=workers, progress=progress)
-    cols = sim_columns(result)
+    sim_meta = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name,
+                     gripper=body_gripper(gripper).to_dict(), directions=list(DIRECTIONS))
+    return _publish(source, target, arrays, sim_columns(result), sim_meta)
+
+
+def add_hand_sim_columns(path, hand, mesh, *, out=None, protocol: Protocol | None = None, seed: int = 0,
+                         workers: int | None = None, progress: bool = False, mesh_name: str | None = None) -> Path:
+    """Simulate the hand grasps of a result file of :func:`grasp_jax.hands.synthesize` (its
+    ``save``, or ``grasp-jax hand --out``) and add :data:`SIM_COLUMNS` to it, atomically.
+
+    Args:
+        path: the ``.npz`` or ``.parquet`` file, with ``position``, ``quaternion``, ``joints``,
+            ``pregrasp`` and ``squeeze`` per grasp.
+        hand: the :class:`grasp_jax.hands.Hand` the grasps are of (the file names it only).
+        mesh, out, protocol, seed, workers, progress, mesh_name: as :func:`add_sim_columns`.
+
+    Raises:
+        ValueError: the file lacks a needed column or its joints do not match ``hand``; nothing is
+            written then.
+    """
+    source = ResultFile(path)
+    missing = [c for c in HAND_COLUMNS if c not in source.fields]
+    if missing:
+        raise ValueError(f"{str(source.path)!r} has no {missing}: simulating hand grasps needs the columns "
+                         f"{list(HAND_COLUMNS)} (grasp-jax hand --out writes them)")
+    target = _target(source, out)
+    protocol = Protocol() if protocol is None else protocol
+    arrays = source.read()
+    result = simulate_hand(hand, mesh, SimpleNamespace(**{c: arrays[c] for c in HAND_COLUMNS}), protocol=protocol,
+                           seed=seed, workers=workers, progress=progress)
+    sim_meta = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name, hand=hand.name,
+                     directions=list(DIRECTIONS))
+    return _publish(source, target, arrays, sim_columns(result), sim_meta)
+
+
+def _target(source: ResultFile, out) -> Path:
+    target = source.path if out is None else check_output_path(out)
+    if target.suffix.lower() != source.path.suffix.lower():
+        raise ValueError(f"out must have the format of {str(source.path)!r}; got {str(target)!r}")
+    return target
+
+
+def _publish(source: ResultFile, target: Path, arrays: dict, cols: dict, sim_meta: dict) -> Path:
+    """The source's rows with ``cols`` added (replacing columns of the same names) and its
+    metadata with ``sim_meta`` under ``"sim"``, written to ``target`` atomically."""
     meta = dict(source.metadata)
-    meta["sim"] = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name,
-                        gripper=body_gripper(gripper).to_dict(), directions=list(DIRECTIONS))
+    meta["sim"] = sim_meta
     if source.format == "npz":
         arrays.update(cols)
         _write_npz(target, arrays, meta)
