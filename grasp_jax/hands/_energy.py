@@ -4,7 +4,7 @@
   to the surface along the SDF gradient, with the gradient as its outward normal;
 * ``-closure``: grasp_jax's own objective on those contacts (``_objectives.objective_one``, the
   same LPs as ``gj.optimize``; or DexGraspNet's energy with ``kind="dfc"``);
-* distance: the contacts' distances to the surface;
+* distance: the contacts' distances to the surface (less a small gap);
 * penetration: the hand's collision spheres into the object (SDF) and the object's surface
   points into the spheres;
 * self-collision: spheres of different fingers that overlap.
@@ -32,13 +32,16 @@ from ._sdf import ObjectGeometry, distance, distance_and_normal
 class Weights:
     """Weights of the energy terms (static; hashable)."""
 
-    closure: float = 1.0
+    closure: float = 5.0
     distance: float = 300.0
     penetration: float = 100.0
     self_collision: float = 10.0
     #: Sphere penetration (m) left unpenalized: the spheres lie inside the links, so a little of it
     #: lets a fingertip touch where a neighbouring link's sphere grazes the object.
-    allowance: float = 6e-4
+    allowance: float = 3e-4
+    #: Distance (m) the contacts are pulled to: a hair off the surface, so that the parts of the
+    #: fingertips between the spheres stay out of the object (the squeeze configuration closes it).
+    gap: float = 5e-4
 
 
 def contacts(hand: Hand, geom: ObjectGeometry, frames):
@@ -85,7 +88,7 @@ def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *
     pen_sum, pen_max = penetration(hand, geom, frames, weights.allowance)
     collide = self_collision(hand, frames, pairs)
     scale = geom.scale
-    total = (-weights.closure * value + weights.distance * jnp.sum(jnp.abs(dist)) / scale
+    total = (-weights.closure * value + weights.distance * jnp.sum(jnp.abs(dist - weights.gap)) / scale
              + weights.penetration * pen_sum / scale + weights.self_collision * collide / scale)
     return total, {"objective": value, "distance": jnp.max(jnp.abs(dist)), "penetration": pen_max}
 
