@@ -191,3 +191,107 @@ def in_process(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     yield cli.main
     signal.signal(signal.SIGTERM, before)
+
+
+# ---------------------------------------------------------------------------------------------
+# Opt-in profile of the compilations: GRASP_JAX_PROFILE_COMPILES=compiles.json writes, per test
+# (setup, call and teardown together), its wall seconds, the number of XLA compilations, their
+# backend-compile seconds and the programs (name, argument shapes, seconds); one file per worker
+# (``compiles.gw0.json``, ...), and one line per test as it finishes (``compiles.gw0.jsonl``).
+# ``python tests/_profile.py compiles.*.jsonl`` sums them up.
+# ---------------------------------------------------------------------------------------------
+PROFILE_COMPILES = os.environ.get("GRASP_JAX_PROFILE_COMPILES")
+
+
+class _CompileProfile:
+    def __init__(self):
+        import logging
+        import re
+        import time
+
+        self._time = time
+        self.current = None  # the running test's record
+        self.tests: list[dict] = []
+        self._shapes = None
+        self._compiling = re.compile(r"Compiling (\S+) with global shapes and types (.*?)\. Argument mapping")
+        self._finished = re.compile(r"Finished XLA compilation of (\S+) in ([0-9.eE+-]+) sec")
+        profile = self
+
+        class Handler(logging.Handler):
+            def emit(self, record):
+                try:
+                    message = record.getMessage()
+                except Exception:  # noqa: BLE001
+                    return
+                profile._log(message)
+
+        handler = Handler(level=logging.DEBUG)
+        for name in ("jax._src.interpreters.pxla", "jax._src.dispatch"):
+            logger = logging.getLogger(name)
+            logger.setLevel(logging.DEBUG)
+            logger.addHandler(handler)
+        jax.monitoring.register_event_duration_secs_listener(self._event)
+
+    def _event(self, event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration" and self.current is not None:
+            self.current["compiles"] += 1
+            self.current["compile_s"] += float(duration)
+
+    def _log(self, message):
+        if self.current is None:
+            return
+        match = self._compiling.search(message)
+        if match:
+            self._shapes = match.group(2)[:400]
+            return
+        match = self._finished.search(message)
+        if match:
+            self.current["programs"].append([match.group(1), self._shapes, float(match.group(2))])
+            self._shapes = None
+
+    def start(self, nodeid):
+        self.current = {"test": nodeid, "compiles": 0, "compile_s": 0.0, "programs": [],
+                        "start": self._time.time()}
+        self._perf = self._time.perf_counter()
+
+    def stop(self):
+        import json
+
+        self.current["wall_s"] = self._time.perf_counter() - self._perf
+        self.tests.append(self.current)
+        with open(_profile_path(".jsonl"), "a") as f:  # as it goes: a run cut short keeps its tests
+            f.write(json.dumps({"worker": _worker(), **self.current}) + "\n")
+        self.current = None
+
+
+_PROFILE = _CompileProfile() if PROFILE_COMPILES else None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if _PROFILE is None:
+        yield
+        return
+    _PROFILE.start(item.nodeid)
+    try:
+        yield
+    finally:
+        _PROFILE.stop()
+
+
+def _worker():
+    return os.environ.get("PYTEST_XDIST_WORKER")
+
+
+def _profile_path(suffix):
+    path = Path(PROFILE_COMPILES)
+    worker = _worker()
+    return path.with_name(f"{path.stem}.{worker}{suffix}" if worker else f"{path.stem}{suffix}")
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _PROFILE is None or (_worker() is None and getattr(session.config.option, "numprocesses", None)):
+        return  # off, or the controller of an xdist run (the workers write)
+    import json
+
+    _profile_path(".json").write_text(json.dumps({"worker": _worker(), "tests": _PROFILE.tests}, indent=0))

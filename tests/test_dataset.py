@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pyarrow.dataset as pads
@@ -45,6 +46,21 @@ def whole(meshes, tmp_path_factory):
     summary = dataset.build(meshes, out, **SETTINGS)
     assert summary.done == ["a_box", "b_ball", "c_can"] and not summary.failed
     return out, _rows(out)
+
+
+@pytest.fixture
+def usage(in_process, capsys):
+    """``grasp-jax ARGS`` in this process, for the usage errors (exit 2 before any grasp is made),
+    with the ``returncode``, ``stdout`` and ``stderr`` of :func:`test_cli.grasp_jax`: a process
+    start each is what they cost. ``main``'s exit 2 in a real process: ``test_cli.py``'s
+    ``test_user_mistakes_in_a_process``; ``dataset`` in one: ``test_killed_and_resumed_from_the_command_line``."""
+
+    def run(*args):
+        code = in_process([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+    return run
 
 
 def _rows(out):
@@ -148,7 +164,7 @@ def test_killed_and_resumed_from_the_command_line(whole, meshes, env, tmp_path):
             np.testing.assert_array_equal(rows[name], ref[name], err_msg=name)
 
 
-def test_bad_input(tmp_path, env):  # noqa: F811
+def test_bad_input(tmp_path, usage):
     (tmp_path / "empty").mkdir()
     with pytest.raises(dataset.DatasetError, match="holds no mesh files"):
         dataset.list_objects(tmp_path / "empty")
@@ -175,12 +191,12 @@ def test_bad_input(tmp_path, env):  # noqa: F811
     assert dataset.shard_from_environment(slurm) == (2, 4)
     with pytest.raises(dataset.DatasetError, match="SLURM array task 9 of 4"):
         dataset.shard_from_environment({"SLURM_ARRAY_TASK_ID": "9", "SLURM_ARRAY_TASK_COUNT": "4"})
-    out = grasp_jax("dataset", "empty", "--out", "ds", env=env, cwd=tmp_path, check=False)
+    out = usage("dataset", "empty", "--out", "ds")
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "holds no mesh files" in out.stderr
     assert not (tmp_path / "ds").exists()
-    out = grasp_jax("dataset", "empty", "--out", "ds", "--collision", env=env, cwd=tmp_path, check=False)
+    out = usage("dataset", "empty", "--out", "ds", "--collision")
     assert out.returncode == 2 and "--collision describes a gripper: add --gripper parallel-jaw" in out.stderr
-    out = grasp_jax("dataset", "empty", "--out", "ds", "--gripper", "parallel-jaw", env=env, cwd=tmp_path, check=False)
+    out = usage("dataset", "empty", "--out", "ds", "--gripper", "parallel-jaw")
     assert out.returncode == 2 and "needs --max-width" in out.stderr
     from grasp_jax.grippers import ParallelJaw
 
@@ -224,7 +240,7 @@ def test_parallel_jaw_dataset(meshes, tmp_path):
     assert dataset.build(meshes, out, **settings).skipped == ["a_box", "b_ball", "c_can"]
 
 
-def test_hand_dataset(tmp_path, env):  # noqa: F811
+def test_hand_dataset(tmp_path, usage):
     """Hand grasps over a folder of objects: one part per object (``hands.synthesize``'s result, one
     row per start), records with the valid count, the hand in the manifest, resumed only with the
     same hand; ``--hand`` with a gripper or robust labels is one clear error."""
@@ -264,7 +280,7 @@ def test_hand_dataset(tmp_path, env):  # noqa: F811
                            (["--robust", "4", "--sigma-pos", "0.02"], "--robust sets robust labels"),
                            (["--starts", "8"], None)):
         hand_flags = [] if message is None else ["--hand", "default"]
-        cli = grasp_jax("dataset", folder, "--out", "cli", *hand_flags, *flags, env=env, cwd=tmp_path, check=False)
+        cli = usage("dataset", folder, "--out", "cli", *hand_flags, *flags)
         message = message or "--starts sets the hand grasps: add --hand"
         assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and message in cli.stderr, cli.stderr
     assert not (tmp_path / "cli").exists()
