@@ -87,7 +87,7 @@ def test_forward_gradient_matches_finite_differences(default_hand):
 
     with float64_scope():
         pose, joints = jnp.asarray(pose[0]), jnp.asarray(joints[0])
-        gp, gj = jax.grad(f, argnums=(0, 1))(pose, joints)
+        gp, gj = jax.jit(jax.grad(f, argnums=(0, 1)))(pose, joints)  # op by op: 148 programs
         f = jax.jit(f)
         h = 1e-6
         for args, grad in (((0, pose), gp), ((1, joints), gj)):
@@ -101,11 +101,12 @@ def test_forward_gradient_matches_finite_differences(default_hand):
 
 def test_forward_vmap_equals_loop_and_float32(default_hand):
     pose, joints = _random_configs(default_hand, 5, seed=3)
+    forward = jax.jit(hands.forward)  # op by op, the loop and the vmap compiled 112 programs
     with float64_scope():
-        batched = np.asarray(jax.vmap(hands.forward, in_axes=(None, 0, 0))(default_hand, pose, joints))
-        loop = np.stack([np.asarray(hands.forward(default_hand, p, q)) for p, q in zip(pose, joints)])
+        batched = np.asarray(jax.jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(default_hand, pose, joints))
+        loop = np.stack([np.asarray(forward(default_hand, p, q)) for p, q in zip(pose, joints)])
     np.testing.assert_allclose(batched, loop, atol=1e-12)
-    single = hands.forward(default_hand, pose[0].astype(np.float32), joints[0].astype(np.float32))
+    single = forward(default_hand, pose[0].astype(np.float32), joints[0].astype(np.float32))
     assert single.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(single), loop[0], atol=1e-5)
     with pytest.raises(ValueError, match="pose must have shape"):
@@ -178,7 +179,7 @@ def test_sdf_against_trimesh(glass):
     rng = np.random.default_rng(0)
     x = glass.center + rng.uniform(-1.2, 1.2, (400, 3)) * glass.radius
     with float64_scope():
-        ours = np.asarray(jax.vmap(lambda p: hands._sdf.distance(geom, p))(x))
+        ours = np.asarray(jax.jit(jax.vmap(lambda p: hands._sdf.distance(geom, p)))(x))  # op by op: 38 programs
     exact = -trimesh.proximity.signed_distance(glass.mesh, x)
     near = np.abs(exact) < 0.1 * glass.radius
     assert np.abs(ours - exact)[near].max() < 0.5 * float(geom.cell)
@@ -196,10 +197,11 @@ def test_penetration_against_trimesh(default_hand, glass):
     geom = hands.geometry(glass)
     far = np.array([*(glass.center + [0, 0, 3 * glass.radius]), 1.0, 0, 0, 0])
     inside = np.array([*(glass.center - [0, 0, 0.01]), 1.0, 0, 0, 0])
+    forward, penetration = jax.jit(hands.forward), jax.jit(_energy.penetration)  # op by op: 57 programs
     with float64_scope():
         for pose, expect in ((far, False), (inside, True)):
-            frames = np.asarray(hands.forward(default_hand, pose, default_hand.open_joints))
-            depth = float(_energy.penetration(default_hand, geom, frames)[1])
+            frames = np.asarray(forward(default_hand, pose, default_hand.open_joints))
+            depth = float(penetration(default_hand, geom, frames)[1])
             meshes = [_geometry.element_mesh(c).apply_transform(frames[c.link]) for c in default_hand.collisions]
             pts = np.concatenate([m.sample(300, return_index=False) for m in meshes])
             exact = trimesh.proximity.signed_distance(glass.mesh, pts).max()
