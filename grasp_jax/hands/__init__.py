@@ -1,8 +1,13 @@
 """Hands: grasps synthesized as a wrist pose and joint angles of a URDF hand.
 
->>> from grasp_jax import hands
->>> hand = hands.load("default")          # or hands.load("path/to/hand.urdf")
->>> frames = hands.forward(hand, pose, joints)   # (L, 4, 4); pose = position + quaternion wxyz
+* :func:`load` (``"default"`` or a ``.urdf`` file) -> :class:`Hand`; :func:`builtin`;
+* :func:`forward` (one configuration; pose = position + quaternion **wxyz**) -> ``(L, 4, 4)``;
+* :func:`geometry`: an object as a fixed-shape SDF grid and surface points (pytree data);
+* :func:`synthesize` -> :class:`HandGraspResult` (``.save(path)``, :func:`load_result`).
+
+>>> from grasp_jax import hands, objects
+>>> hand = hands.load("default")
+>>> result = hands.synthesize(hand, objects.load("glass"), starts=64, steps=80)
 """
 
 from ._builtin import DEFAULT_NAME as DEFAULT_NAME
