@@ -50,7 +50,7 @@ def main(argv=None):
         with open(args.json, "w") as f:
             json.dump({k: dict(zip(("tests", "compiles", "compile_s", "test_s"), v)) for k, v in per_file.items()},
                       f, indent=1)
-    print(f"\nTests with the most compile seconds:")
+    print("\nTests with the most compile seconds:")
     for t in sorted(tests, key=lambda t: -t["compile_s"])[: args.tests]:
         print(f"{t['compile_s']:7.1f} s {t['compiles']:4d} compiles {t['wall_s']:7.1f} s wall  {t['test']}")
     programs = collections.defaultdict(lambda: [0, 0.0, set()])
@@ -61,12 +61,12 @@ def main(argv=None):
                 table[key][0] += 1
                 table[key][1] += secs
                 table[key][2].add(t["test"].split("::")[0].replace("tests/", ""))
-    print(f"\nPrograms compiled most often (same name and shapes):")
+    print("\nPrograms compiled most often (same name and shapes):")
     for (name, shapes), (n, secs, files) in sorted(programs.items(), key=lambda kv: -kv[1][1])[: args.programs]:
         if n > 1:
             print(f"{n:4d}x {secs:7.1f} s {name} {str(shapes)[:160]}  [{', '.join(sorted(files))[:120]}]")
     if args.names:
-        print(f"\nPrograms by name:")
+        print("\nPrograms by name:")
         for name, (n, secs, files) in sorted(names.items(), key=lambda kv: -kv[1][1])[: args.names]:
             print(f"{n:4d}x {secs:7.1f} s {name}  [{', '.join(sorted(files))[:150]}]")
 

@@ -98,16 +98,15 @@ hypothesis.settings.register_profile(
 hypothesis.settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "grasp_jax"))
 
 
-#: Test files in the order they are started, the longest first (CPU seconds of a run that
-#: compiles everything, 2 workers: objectives 200, closure 155, cli 90, robust 70, pipeline 70, devices 65,
-#: surfaces 65, optimize 60, dtypes 60, autodiff 50, batching 50, docs 50, compose 40, lp 30,
-#: cli_optimize 30, html 25 (wall: a browser), invariance 25; the others less), so that no long file is left for the end of a parallel run
-#: (``--no-loadscope-reorder`` in ``pyproject.toml`` keeps this order). Files not named here follow,
-#: in their usual order; the tests of a file keep theirs.
+#: Test files in the order they are started, the longest first, so that no long file is left for
+#: the end of a parallel run (``--no-loadscope-reorder`` in ``pyproject.toml`` keeps this order).
+#: Seconds per file: ``GRASP_JAX_PROFILE_COMPILES`` (below) and ``tests/_profile.py``. Files not
+#: named here follow, in their usual order; the tests of a file keep theirs.
 LONGEST_FIRST = (
-    "test_objectives.py", "test_closure.py", "test_cli.py", "test_robust.py", "test_pipeline.py", "test_devices.py",
-    "test_surfaces.py", "test_optimize.py", "test_dtypes.py", "test_autodiff.py", "test_batching.py",
-    "test_docs.py", "test_compose.py", "test_lp.py", "test_cli_optimize.py", "test_html.py", "test_invariance.py",
+    "test_objectives.py", "test_dataset.py", "test_closure.py", "test_hands.py", "test_cli.py", "test_robust.py",
+    "test_pipeline.py", "test_devices.py", "test_surfaces.py", "test_optimize.py", "test_friction.py",
+    "test_dtypes.py", "test_autodiff.py", "test_batching.py", "test_docs.py", "test_sim.py", "test_compose.py",
+    "test_lp.py", "test_cli_optimize.py", "test_html.py", "test_invariance.py",
 )
 
 
