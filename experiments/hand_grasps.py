@@ -59,7 +59,7 @@ def draw(ax, hand, result, index, obj):
     """The object's mesh and the posed hand's collision geometry of grasp ``index``."""
     mesh = obj.mesh
     faces = mesh.faces[:: max(1, len(mesh.faces) // 1500)]
-    ax.plot_trisurf(*mesh.vertices.T, triangles=faces, color="0.8", alpha=0.5, linewidth=0)
+    ax.plot_trisurf(*mesh.vertices.T, triangles=faces, color="tab:orange", alpha=0.9, linewidth=0)
     pose = np.concatenate([result.position[index], result.quaternion[index]])
     frames = np.asarray(forward(hand, pose, result.joints[index]))
     for c in hand.collisions:
