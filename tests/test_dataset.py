@@ -227,7 +227,7 @@ def test_parallel_jaw_dataset(meshes, tmp_path):
     record = summary.rows["b_ball"]
     assert record["critical_mu_p50"] is not None and "mu* p50" in summary.format()
     alone = {k: v for k, v in settings.items() if k != "num"}
-    ball = pipeline.run(dataset._load(dataset.list_objects(meshes)[1]), 200, 2, out=tmp_path / "ball.parquet",
+    ball = pipeline.run(dataset.load_entry(dataset.list_objects(meshes)[1]), 200, 2, out=tmp_path / "ball.parquet",
                         **alone)
     assert ball.force_closure == record["force_closure"]
     alone = pads.dataset(tmp_path / "ball.parquet", format="parquet").to_table()
