@@ -83,11 +83,7 @@ def add_sim_columns(path, mesh, *, out=None, gripper=None, protocol: Protocol | 
         ValueError: the file lacks a needed column (one sentence naming them), or as
             :func:`~grasp_jax.sim.simulate_jaws`; nothing is written then.
     """
-    source = ResultFile(path)
-    missing = [c for c in JAW_COLUMNS if c not in source.fields]
-    if missing:
-        raise ValueError(f"{str(source.path)!r} has no {missing}: simulating jaw grasps needs the columns "
-                         f"{list(JAW_COLUMNS)} (grasp-jax sample --gripper parallel-jaw writes them)")
+    source = _opened(path, JAW_COLUMNS, "jaw", "grasp-jax sample --gripper parallel-jaw")
     target = _target(source, out)
     if gripper is None and isinstance(source.metadata.get("gripper"), dict):
         gripper = ParallelJaw.from_dict(source.metadata["gripper"])
@@ -116,11 +112,7 @@ def add_hand_sim_columns(path, hand, mesh, *, out=None, protocol: Protocol | Non
         ValueError: the file lacks a needed column or its joints do not match ``hand``; nothing is
             written then.
     """
-    source = ResultFile(path)
-    missing = [c for c in HAND_COLUMNS if c not in source.fields]
-    if missing:
-        raise ValueError(f"{str(source.path)!r} has no {missing}: simulating hand grasps needs the columns "
-                         f"{list(HAND_COLUMNS)} (grasp-jax hand --out writes them)")
+    source = _opened(path, HAND_COLUMNS, "hand", "grasp-jax hand --out")
     target = _target(source, out)
     protocol = Protocol() if protocol is None else protocol
     arrays = source.read()
@@ -129,6 +121,16 @@ def add_hand_sim_columns(path, hand, mesh, *, out=None, protocol: Protocol | Non
     sim_meta = stamp(protocol=asdict(protocol), seed=int(seed), object=mesh_name, hand=hand.name,
                      directions=list(DIRECTIONS))
     return _publish(source, target, arrays, sim_columns(result), sim_meta)
+
+
+def _opened(path, columns: tuple, kind: str, writer: str) -> ResultFile:
+    """The result file at ``path``, with a ``ValueError`` naming the ``columns`` it lacks."""
+    source = ResultFile(path)
+    missing = [c for c in columns if c not in source.fields]
+    if missing:
+        raise ValueError(f"{str(source.path)!r} has no {missing}: simulating {kind} grasps needs the columns "
+                         f"{list(columns)} ({writer} writes them)")
+    return source
 
 
 def _target(source: ResultFile, out) -> Path:
