@@ -39,6 +39,8 @@ examples:
   grasp-jax sample glass --num 100000 --out s.npz && grasp-jax optimize --from s.npz --starts 256
   grasp-jax sample glass --num 10000 --robust 100 --sigma-pos 0.02 --mu-range 0.8,1.2 --out robust.parquet
   grasp-jax dataset meshes/ --out data/ --num 10000 --robust 100 --sigma-pos 0.02 --shard 0/4
+  grasp-jax hand mug.obj --hand allegro_hand_right.urdf --starts 256 --out mug_hand.parquet --html mug.html
+  grasp-jax sample mug.obj --gripper parallel-jaw --max-width 0.1 --num 2000 --out jaws.npz && grasp-jax simulate jaws.npz
 """
 
 _NOTES = (
