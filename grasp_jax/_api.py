@@ -101,10 +101,6 @@ def contact_model(contact, torsion, num_edges: int, d: int) -> ContactModel:
     return ContactModel(contact, num_edges, torsion)
 
 
-def _typed(model: ContactModel, dtype) -> ContactModel:
-    return dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype))
-
-
 def _evaluate_single(points, normals, tangents, shared, *, torque_test):
     (mu, model), iterations, restarts = shared  # traced: every budget runs one compiled program
     return _closure.evaluate_one(points, normals, mu, model, torque_test, tangents, iterations, restarts)
@@ -179,7 +175,7 @@ def evaluate(
     fn = evaluation_function(points, torque_test)
     budget, retry = _passes(points, model, iterations)
     with scope:
-        friction = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype))
+        friction = (jnp.asarray(mu, points.dtype), model.astype(points.dtype))
         shared = (friction, *budget)
         retry = tuple(Retry((friction, *pass_), _unfinished) for pass_ in retry)
         result = map_grasps(fn, (points, normals, tangents), shared, batch, progress=progress, retry=retry)
@@ -273,7 +269,7 @@ def quality(
     fn = _bind(_quality_single, signed=signed)
     budget, retry = _passes(points, model, iterations)
     with scope:
-        friction = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype))
+        friction = (jnp.asarray(mu, points.dtype), model.astype(points.dtype))
         shared = (friction, *budget)
         retry = tuple(Retry((friction, *pass_), _quality_unfinished) for pass_ in retry)
         value, _ = map_grasps(fn, (points, normals, tangents), shared, batch, retry=retry)
@@ -332,7 +328,7 @@ def min_weight(
     fn = _bind(_min_weight_single, iterations=iterations)
     with scope:
         origin = jnp.zeros(d, points.dtype) if origin is None else jnp.asarray(origin, points.dtype)
-        shared = (jnp.asarray(mu, points.dtype), _typed(model, points.dtype), origin,
+        shared = (jnp.asarray(mu, points.dtype), model.astype(points.dtype), origin,
                   jnp.asarray(torque_scale, points.dtype))
         margin, status = map_grasps(fn, (points, normals, tangents), shared, batch, block=MIN_WEIGHT_BLOCK)
     _warn_unconverged(status, "min-weight LPs")

@@ -47,6 +47,10 @@ class ContactModel:
     num_edges: int = dataclasses.field(default=8, metadata={"static": True})
     torsion: jax.Array | float = 0.0
 
+    def astype(self, dtype) -> ContactModel:
+        """The same model with ``torsion`` a JAX scalar of ``dtype`` (for a program's shared data)."""
+        return dataclasses.replace(self, torsion=jnp.asarray(self.torsion, dtype))
+
     def columns_per_contact(self) -> int:
         """Wrench columns one 3D contact contributes (:func:`columns_per_contact`)."""
         return columns_per_contact(self.kind, self.num_edges)

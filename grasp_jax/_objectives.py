@@ -17,7 +17,6 @@ and returns a scalar and a small dict of monitors.
 
 from __future__ import annotations
 
-import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -230,7 +229,7 @@ def objective(
         if center.shape != (d,):
             raise ValueError(f"center must have shape ({d},); got {center.shape}")
         fn = _bind(_objective_single, kind=kind, iterations=iterations)
-        model = dataclasses.replace(model, torsion=jnp.asarray(model.torsion, points.dtype))
+        model = model.astype(points.dtype)
         shared = (jnp.asarray(mu, points.dtype), model, center,
                   jnp.asarray(scale, points.dtype))
         return map_grasps(fn, (points, normals), shared, batch)

@@ -493,7 +493,7 @@ def _run(surface, contacts, mu, model: ContactModel, kind, optimizer, steps, mon
     draws, flags = robust if robust is not None else (None, None)
     fn = _bind(_segment, treedef=treedef, kind=kind, optimizer=optimizer, length=length, total=steps,
                monitor=monitor, iterations=budget, noise_flags=flags)
-    mu = (jnp.asarray(mu, dtype), dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype)))
+    mu = (jnp.asarray(mu, dtype), model.astype(dtype))
     values, qualities = [], []
     embed = jax.vmap(jax.vmap(surface.embed))
     path = [np.asarray(embed(contacts)[0])]

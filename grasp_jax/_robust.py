@@ -364,7 +364,7 @@ def label(perturber, *, quantile, torque_test, model: ContactModel, margin, torq
     stuck = 0  # min-weight LPs that did not converge
     with perturber.scope:
         perturber.start()
-        typed = dataclasses.replace(model, torsion=jnp.asarray(model.torsion, dtype))
+        typed = model.astype(dtype)
         shared = (typed, *budget)
         retries = tuple(Retry((typed, *pass_), _unfinished) for pass_ in retry)
         weight_shared = (typed, jnp.asarray(perturber.center, dtype), jnp.asarray(torque_scale, dtype))
