@@ -53,7 +53,13 @@ def run(args) -> int:
     spec = args.object or source.metadata.get("object")
     if spec is None:
         raise ValueError(f"{str(args.file)!r} names no object: pass --object")
-    obj = _object(spec)
+    try:
+        obj = _object(spec)
+    except ValueError as exc:
+        if args.object is not None:
+            raise
+        raise ValueError(f"{str(args.file)!r} names the object {spec!r}, which cannot be loaded here ({exc}): "
+                         "pass --object MESH") from None
     path = _simulate(args, sim, args.file, source, obj, str(spec), args.out)
     _report(args, path)
     return 0
