@@ -1,8 +1,12 @@
-"""grasp_jax.hands: loading, forward kinematics against yourdfpy, candidates, SDF, synthesis."""
+"""grasp_jax.hands: loading (URDF, MJCF), forward kinematics against yourdfpy and MuJoCo, candidates, SDF,
+synthesis."""
 
 from __future__ import annotations
 
 import io
+import os
+import re
+import sys
 from pathlib import Path
 
 import jax
@@ -142,6 +146,195 @@ def test_mimic_joint_follows_its_source(tmp_path, default_hand):
     assert hand.num_joints == 5 and "f0_j1" not in hand.joint_names
     urdf = yourdfpy.URDF.load(str(tmp_path / "hand.urdf"), load_meshes=False)
     _check_against_yourdfpy(hand, urdf, 20)
+
+
+# ---------------------------------------------------------------------------------------------
+# MJCF hands, read through MuJoCo's compiler and checked against its own kinematics.
+
+TOY_MJCF = """<mujoco model="toy">
+  <compiler angle="degree"/>
+  <default><default class="visual"><geom contype="0" conaffinity="0"/></default></default>
+  <asset><mesh name="block" scale="1 1 2" vertex="0 0 0  0.016 0 0  0 0.012 0  0.016 0.012 0  0 0 0.01
+    0.016 0 0.01  0 0.012 0.01  0.016 0.012 0.01"/></asset>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <body name="palm" pos="0.1 0.2 0.3" quat="0.9 0.1 0.2 0.3">
+      <freejoint name="float"/>
+      <geom type="box" size="0.04 0.04 0.01"/>
+      <geom class="visual" type="sphere" size="0.1"/>
+      <body name="f0" pos="0.03 0 0.01" euler="10 20 30">
+        <joint name="f0_yaw" axis="1 0 0" range="-20 20" pos="0 0.002 0"/>
+        <joint name="f0_pitch" axis="0 1 1" range="0 90" pos="0.001 0 0.003" ref="10"/>
+        <geom type="capsule" fromto="0 0 0 0 0.01 0.04" size="0.008"/>
+        <body name="f0_tip" pos="0 0 0.04">
+          <joint name="f0_tip" axis="0 1 0" range="0 90" pos="0 0 -0.002"/>
+          <geom type="cylinder" size="0.007 0.01" pos="0 0 0.01"/>
+          <geom type="mesh" mesh="block" pos="0.003 -0.004 0.02" euler="0 30 0"/>
+        </body>
+      </body>
+      <body name="f1" pos="-0.03 0 0.01">
+        <joint name="f1_slide" type="slide" axis="0 0 1" range="0 0.02" ref="0.005"/>
+        <joint name="f1_pitch" axis="0 1 0" range="-90 0"/>
+        <geom type="box" size="0.008 0.008 0.02" pos="0 0 0.02"/>
+        <body name="f1_tip" pos="0 0 0.04">
+          <joint name="f1_tip" axis="0 1 0" range="-90 0"/>
+          <geom type="sphere" size="0.009" pos="0 0 0.01"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <equality>
+    <joint joint1="f0_tip" joint2="f0_pitch" polycoef="0.1 0.5 0 0 0"/>
+    <joint joint1="f1_pitch" joint2="f1_slide" polycoef="-0.2 -30 0 0 0"/>
+    <joint joint1="f1_tip" joint2="f1_pitch" polycoef="0.05 0.7 0 0 0"/>
+  </equality>
+</mujoco>
+"""
+
+
+def _mujoco_frames(model, hand, pose, joints):
+    """``(N, L, 4, 4)`` MuJoCo's body frames (``mj_kinematics``, joint couplings applied by hand)
+    relative to the root body's, placed by the pose; for each body, the link named after it
+    (whose frame is at its last joint's anchor) and that anchor."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    root = model.body(hand.link_names[0]).id
+    adr = model.jnt_qposadr[[model.joint(n).id for n in hand.joint_names]]
+    coupled = [(model.jnt_qposadr[model.eq_obj1id[e]], model.jnt_qposadr[model.eq_obj2id[e]], model.eq_data[e, :2])
+               for e in range(model.neq)]
+    bodies = [b for b in range(model.nbody) if model.body(b).name in hand.link_names]
+    links = [hand.link_index(model.body(b).name) for b in bodies]
+    anchor = np.tile(np.eye(4), (len(bodies), 1, 1))
+    for k, b in enumerate(bodies):
+        if model.body_jntnum[b]:
+            anchor[k, :3, 3] = -model.jnt_pos[model.body_jntadr[b] + model.body_jntnum[b] - 1]
+    out = np.empty((len(pose), len(bodies), 4, 4))
+    for k in range(len(pose)):
+        data.qpos[:] = model.qpos0
+        data.qpos[adr] = joints[k]
+        for y, x, (a0, a1) in coupled:  # in the file's order: a chain's first link first
+            data.qpos[y] = model.qpos0[y] + a0 + a1 * (data.qpos[x] - model.qpos0[x])
+        mujoco.mj_kinematics(model, data)
+        frames = np.tile(np.eye(4), (model.nbody, 1, 1))
+        frames[:, :3, :3], frames[:, :3, 3] = data.xmat.reshape(-1, 3, 3), data.xpos
+        with float64_scope():
+            base = np.asarray(hands._kinematics.pose_matrix(jnp.asarray(pose[k])))
+        out[k] = base @ np.linalg.inv(frames[root]) @ frames[bodies]
+    return out, links, anchor
+
+
+def _check_against_mujoco(hand, model, count):
+    pose, joints = _random_configs(hand, count, seed=4)
+    with float64_scope():
+        ours = np.asarray(jax.jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(hand, pose, joints))
+    theirs, links, anchor = _mujoco_frames(model, hand, pose, joints)
+    ours = ours[:, links] @ anchor  # each body's frame, from its link's (at the anchor)
+    assert np.abs(ours[..., :3, 3] - theirs[..., :3, 3]).max() < 1e-9
+    assert np.abs(ours[..., :3, :3] - theirs[..., :3, :3]).max() < 1e-9
+
+
+@pytest.fixture(scope="module")
+def mjcf_cache(tmp_path_factory):
+    """A cache folder of its own for the meshes MJCF files compile to (``XDG_CACHE_HOME``)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("cache")))
+        yield Path(os.environ["XDG_CACHE_HOME"]) / "grasp_jax" / "mjcf"
+
+
+def test_mjcf_toy_hand_against_mujoco(tmp_path, mjcf_cache):
+    mujoco = pytest.importorskip("mujoco")
+    path = _write(tmp_path, TOY_MJCF, "toy.xml")
+    hand = hands.load(path)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    # the free joint is dropped, f0_tip follows f0_pitch, f1_tip f1_pitch which follows f1_slide,
+    # two bodies carry two joints each
+    assert hand.joint_names == ("f0_yaw", "f0_pitch", "f1_slide")
+    assert hand.link_names == ("palm", "f0/f0_yaw", "f0", "f0_tip", "f1/f1_slide", "f1", "f1_tip")
+    assert hand.num_fingers == 2 and len(hand.collisions) == 6  # no plane, no visual sphere
+    _check_against_mujoco(hand, model, 100)
+    kinds = {}
+    for c in hand.collisions:  # the first of each kind: the palm's box, f0's capsule, f0_tip's cylinder and mesh
+        kinds.setdefault(c.kind, c)
+    assert kinds["box"].size == pytest.approx((0.08, 0.08, 0.02)) and kinds["capsule"].size[1] == pytest.approx(
+        np.linalg.norm([0.01, 0.04]))
+    assert kinds["cylinder"].size == pytest.approx((0.007, 0.02))
+    # the mesh where the file puts it: the scaled block at the geom's pose in its body's frame
+    mesh = kinds["mesh"]
+    assert Path(mesh.filename).parent == mjcf_cache
+    with float64_scope():
+        frames = np.asarray(hands.forward(hand, np.array([0, 0, 0, 1.0, 0, 0, 0]), np.zeros(hand.num_joints)))
+    tip = hand.link_index("f0_tip")
+    placed = hands._geometry.element_mesh(mesh).apply_transform(frames[tip]).vertices  # from the link's frame
+    block = np.array([[x, y, z] for z in (0, 0.02) for y in (0, 0.012) for x in (0, 0.016)])
+    rot = hands._kinematics.quat_to_matrix(jnp.array([np.cos(np.pi / 12), 0, np.sin(np.pi / 12), 0]))
+    body = frames[tip] @ _shift([0, 0, 0.002])  # the link's frame is at the joint's anchor
+    expected = (block @ np.asarray(rot).T + [0.003, -0.004, 0.02]) @ body[:3, :3].T + body[:3, 3]
+    apart = np.linalg.norm(placed[:, None] - expected[None], axis=2)
+    assert len(placed) == 8 and apart.min(axis=0).max() < 1e-6 and apart.min(axis=1).max() < 1e-6
+
+
+def _shift(p):
+    out = np.eye(4)
+    out[:3, 3] = p
+    return out
+
+
+def _urdf_to_mjcf(urdf: Path, out: Path) -> Path:
+    """The URDF compiled by MuJoCo (with the compiler block ../shared/HANDS.md gives) saved as MJCF."""
+    import mujoco
+
+    block = f'<mujoco><compiler balanceinertia="true" strippath="false" meshdir="{urdf.parent}"/></mujoco>'
+    text = re.sub(r"(<robot[^>]*>)", lambda m: m.group(1) + block, urdf.read_text(), count=1)
+    staged = out.with_suffix(".urdf")
+    staged.write_text(text)
+    mujoco.mj_saveLastXML(str(out), mujoco.MjModel.from_xml_path(str(staged)))
+    return out
+
+
+def _element_boxes(hand, joints):
+    """``(E, 6)`` world bounds of each collision element at ``joints`` (identity wrist)."""
+    with float64_scope():
+        frames = np.asarray(hands.forward(hand, np.array([0, 0, 0, 1.0, 0, 0, 0]), joints))
+    meshes = [hands._geometry.element_mesh(c).apply_transform(frames[c.link]) for c in hand.collisions]
+    return np.array([np.r_[m.bounds[0], m.bounds[1]] for m in meshes])
+
+
+@needs_shared
+@pytest.mark.parametrize("name", ["allegro", "leap"])
+def test_mjcf_of_a_urdf_hand_against_mujoco(name, tmp_path, mjcf_cache):
+    mujoco = pytest.importorskip("mujoco")
+    path = _urdf_to_mjcf(HANDS[name], tmp_path / f"{name}.xml")
+    hand, urdf_hand = hands.load(path), hands.load(HANDS[name])
+    _check_against_mujoco(hand, mujoco.MjModel.from_xml_path(str(path)), 100)
+    assert hand.link_names[0] == "world"  # MuJoCo fuses the URDF's root link into the world
+    assert (hand.num_fingers, hand.num_joints) == (urdf_hand.num_fingers, urdf_hand.num_joints)
+    assert sorted(hand.joint_names) == sorted(urdf_hand.joint_names)  # in MuJoCo's (depth-first) order
+    np.testing.assert_allclose(hand.lower, [urdf_hand.lower[urdf_hand.joint_names.index(n)] for n in hand.joint_names])
+    # the same collision geometry in the world (sizes, mesh frames), the file's 6 digits apart
+    joints = _random_configs(hand, 1, seed=5)[1][0]
+    ours = _element_boxes(hand, joints)
+    theirs = _element_boxes(urdf_hand, np.array([joints[hand.joint_names.index(n)] for n in urdf_hand.joint_names]))
+    assert len(ours) == len(theirs)
+    assert np.abs(ours[:, None] - theirs[None]).max(axis=2).min(axis=1).max() < 1e-5
+
+
+def test_mjcf_errors_name_the_file_and_element(tmp_path, mjcf_cache, monkeypatch):
+    pytest.importorskip("mujoco")
+    ball = TOY_MJCF.replace('<joint name="f1_tip" axis="0 1 0" range="-90 0"/>', '<joint name="f1_tip" type="ball"/>')
+    ball = ball.replace('<joint joint1="f1_tip" joint2="f1_pitch" polycoef="0.05 0.7 0 0 0"/>', "")
+    with pytest.raises(ValueError, match=r"toy\.xml.*'f1_tip'.*'f1_tip'.*ball"):
+        hands.load(_write(tmp_path, ball, "toy.xml"))
+    quadratic = TOY_MJCF.replace('polycoef="0.1 0.5 0 0 0"', 'polycoef="0 0.5 0.2 0 0"')
+    with pytest.raises(ValueError, match=r"toy\.xml.*'f0_tip'.*nonlinear"):
+        hands.load(_write(tmp_path, quadratic, "toy.xml"))
+    with pytest.raises(ValueError, match=r"absent\.xml.*not found"):
+        hands.load(tmp_path / "absent.xml")
+    with pytest.raises(ValueError, match=r"hand\.obj.*URDF \(\.urdf\) or MJCF \(\.xml\)"):
+        hands.load(_write(tmp_path, "", "hand.obj"))
+    monkeypatch.setitem(sys.modules, "mujoco", None)  # as where it is not installed
+    with pytest.raises(ValueError, match=r"toy\.xml.*pip install 'grasp_jax\[sim\]'"):
+        hands.load(tmp_path / "toy.xml")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
-"""Hands: grasps synthesized as a wrist pose and joint angles of a URDF hand.
+"""Hands: grasps synthesized as a wrist pose and joint angles of a URDF or MJCF hand.
 
-* :func:`load` (``"default"`` or a ``.urdf`` file) -> :class:`Hand`; :func:`builtin`;
+* :func:`load` (``"default"``, a ``.urdf`` or an MJCF ``.xml`` file) -> :class:`Hand`; :func:`builtin`;
 * :func:`forward` (one configuration; pose = position + quaternion **wxyz**) -> ``(L, 4, 4)``;
 * :func:`geometry`: an object as a fixed-shape SDF grid and surface points (pytree data);
 * :func:`synthesize` -> :class:`HandGraspResult` (``.save(path)``, :func:`load_result`).

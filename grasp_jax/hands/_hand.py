@@ -41,6 +41,14 @@ class Collision:
         return np.asarray(self.origin, dtype=np.float64).reshape(4, 4)
 
 
+class Tree:
+    """A parsed description before geometry is sampled (NumPy; see :class:`Hand` for the fields),
+    as the URDF and MJCF readers give it."""
+
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Hand:
@@ -70,7 +78,7 @@ class Hand:
         finger_link: static ``(F,)`` distal link of each finger.
         link_names, joint_names: static names (``joint_names``: the ``J`` actuated joints).
         collisions: static :class:`Collision` elements.
-        name, path: static; ``path`` is the URDF file (``""`` for a built-in hand).
+        name, path: static; ``path`` is the URDF or MJCF file (``""`` for a built-in hand).
     """
 
     origin: jax.Array

@@ -1,4 +1,4 @@
-"""``load``: a :class:`Hand` from a URDF file or the built-in description, ready for the optimizer."""
+"""``load``: a :class:`Hand` from a URDF or MJCF file or the built-in description, ready for the optimizer."""
 
 from __future__ import annotations
 
@@ -23,11 +23,12 @@ def builtin() -> Hand:
 
 
 def load(spec=DEFAULT_NAME, *, candidates=None, seed: int = 0) -> Hand:
-    """A hand from a URDF file, or the built-in hand by its name ``"default"``.
+    """A hand from a URDF or MJCF file, or the built-in hand by its name ``"default"``.
 
     Args:
         spec: path of a ``.urdf`` file (meshes relative to its folder, ``package://`` prefixes
-            stripped) or ``"default"``.
+            stripped), of an MJCF ``.xml`` file (compiled by MuJoCo, ``pip install
+            'grasp_jax[sim]'``; see :mod:`grasp_jax.hands._mjcf`), or ``"default"``.
         candidates: contact candidates to use instead of the automatic ones: ``(points, normals)``
             of shape ``(F, K, 3)`` each in the frames of the fingers' distal links
             (``hand.finger_link``), or an ``.npz`` file holding ``points`` and ``normals``.
@@ -35,7 +36,8 @@ def load(spec=DEFAULT_NAME, *, candidates=None, seed: int = 0) -> Hand:
 
     Raises:
         ValueError: a file it cannot use, naming the file and the element (missing mesh, unknown
-            joint type, missing limits, no finger found).
+            joint type, missing limits, no finger found; for MJCF: no MuJoCo, ball joints, free
+            joints below the root, nonlinear joint couplings).
     """
     tree = read(spec)
     every, finger = geo.fingers(tree.parent, tree.kind, tree.collisions)

@@ -1,7 +1,8 @@
 """Reading a hand from a URDF file: the kinematic tree, joints, limits, mimic joints, collisions.
 
-Parsed with yourdfpy (pure Python on trimesh, which grasp_jax already uses). A description this
-module cannot use raises one ``ValueError`` naming the file and the element.
+Parsed with yourdfpy (pure Python on trimesh, which grasp_jax already uses); an MJCF file
+(``.xml``) goes to :mod:`._mjcf`. A description this module cannot use raises one ``ValueError``
+naming the file and the element.
 """
 
 from __future__ import annotations
@@ -14,29 +15,25 @@ import numpy as np
 import yourdfpy
 
 from ._builtin import DEFAULT_NAME, default_urdf
-from ._hand import FIXED, PRISMATIC, REVOLUTE, Collision
+from ._hand import FIXED, PRISMATIC, REVOLUTE, Collision, Tree
+from ._mjcf import read as read_mjcf
 
 _KINDS = {"fixed": FIXED, "revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC}
 
 
-class Tree:
-    """The parsed description before geometry is sampled (NumPy; see :class:`Hand` for fields)."""
-
-    def __init__(self, **fields):
-        self.__dict__.update(fields)
-
-
 def read(spec) -> Tree:
-    """Parse ``spec``: :data:`DEFAULT_NAME` or a URDF file path."""
+    """Parse ``spec``: :data:`DEFAULT_NAME`, a URDF file path, or an MJCF (``.xml``) one."""
     if str(spec) == DEFAULT_NAME:
         where, folder = f"built-in hand {DEFAULT_NAME!r}", Path(".")
         source = io.BytesIO(default_urdf().encode())
     else:
         path = Path(spec).expanduser()
         if not path.is_file():
-            raise ValueError(f"{path}: hand description not found; give a URDF file or {DEFAULT_NAME!r}")
+            raise ValueError(f"{path}: hand description not found; give a URDF or MJCF file or {DEFAULT_NAME!r}")
+        if path.suffix.lower() == ".xml":
+            return read_mjcf(path)
         if path.suffix.lower() != ".urdf":
-            raise ValueError(f"{path}: only URDF hand descriptions are read (a .urdf file); got {path.suffix!r}")
+            raise ValueError(f"{path}: a hand description is a URDF (.urdf) or MJCF (.xml) file; got {path.suffix!r}")
         where, folder, source = str(path), path.resolve().parent, str(path)
     try:
         urdf = yourdfpy.URDF.load(source, build_scene_graph=False, load_meshes=False,
