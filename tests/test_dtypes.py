@@ -48,10 +48,11 @@ _FLOAT32_PROGRAM = textwrap.dedent(
     out["quality"] = str(gj.quality(p, p, mu=0.364).dtype)
     out["min_weight"] = str(gj.min_weight(p, p, mu=0.364).dtype)
     out["central_axis"] = str(gj.central_axis(np.ones(3)).pitch.dtype)
-    # Under the caller's jit the library computes in the caller's (float32) dtype.
-    out["traced"] = str(jax.jit(lambda x: gj.quality(x, x, mu=0.364))(p[:3]).dtype)
-    # (under jit: op by op, the solver's loop compiles a program per operation)
-    out["grad"] = str(jax.jit(jax.grad(lambda x: gj.quality(x, p[0], mu=0.364)))(p[0]).dtype)
+    # Under the caller's transformations the library computes in the caller's (float32) dtype.
+    # The dtype is fixed when the function is traced: eval_shape traces as jit does and compiles
+    # nothing (jit compiled two programs here, 13 s; op by op, a program per operation).
+    out["traced"] = str(jax.eval_shape(lambda x: gj.quality(x, x, mu=0.364), p[:3]).dtype)
+    out["grad"] = str(jax.eval_shape(jax.grad(lambda x: gj.quality(x, p[0], mu=0.364)), p[0]).dtype)
 
     out["changed_by_calls"] = sorted(k for k, v in jax.config.values.items() if before.get(k) != v)
     out["after"] = [str(jnp.ones(3).dtype), str(f32(np.ones(3)).dtype), str(jnp.asarray(np.ones(2)).dtype)]
@@ -165,28 +166,72 @@ def test_float64_scope_nests():
 
 BAND = 1e-4
 
+#: A box grasp whose only equilibrium is the first contact alone (see the test below).
+UNFINISHED_GRASP = (
+    np.array([[0.13945439457893372, 0.6000000238418579, -0.17477265000343323],
+              [0.2870014011859894, 0.24085910618305206, 0.4000000059604645],
+              [-0.9510809183120728, -0.6000000238418579, 0.02870021015405655],
+              [-0.2120772749185562, -0.6000000238418579, -0.38295602798461914]], np.float32),
+    np.array([[0, 1, 0], [0, 0, 1], [0, -1, 0], [0, -1, 0]], np.float32),
+)
+
+
+def _float64_grasps() -> dict:
+    """``{name: (points, normals)}``: the grasps whose float64 results the float32 tests compare
+    with (float64 arrays)."""
+    out = {name: grasps(sampler, count, 4, np.random.default_rng(seed))
+           for name, sampler, count, seed in (("box", sample_box, 2000, 5), ("sphere", sample_sphere, 2000, 6),
+                                              ("cylinder", sample_cylinder_side, 300, 27))}
+    out["unfinished"] = tuple(a.astype(np.float64) for a in UNFINISHED_GRASP)
+    return out
+
+
+FLOAT64_FIELDS = ("delta", "torque_margin", "equilibrium", "force_closure", "quality")
+
 
 @pytest.fixture(scope="module")
-def float32_vs_float64():
-    """2,000 random 4-finger grasps each of the box and the sphere (the float64 program is the one
-    the other tests use): float32 against float64, no float64 anywhere on the float32 path."""
+def float64_results():
+    """``{name: {field: array}}``: ``evaluate``'s float64 results on :func:`_float64_grasps` (the
+    float64 program is the one the other tests use). In a child of
+    ``test_float32_under_a_narrower_instruction_set`` they are read from the parent's file: the
+    child checks float32 programs, and compiling the float64 one too cost it 12 s."""
+    cases = _float64_grasps()
+    path = os.environ.get(_FLOAT64_FILE)
+    if path:
+        with np.load(path) as f:
+            for name, (p, n) in cases.items():  # the same grasps as the parent's
+                np.testing.assert_array_equal(f[f"{name}.points"], p)
+                np.testing.assert_array_equal(f[f"{name}.normals"], n)
+            return {name: {field: f[f"{name}.{field}"] for field in FLOAT64_FIELDS} for name in cases}
     out = {}
-    for name, sampler, seed in (("box", sample_box, 5), ("sphere", sample_sphere, 6)):
-        p, n = grasps(sampler, 2000, 4, np.random.default_rng(seed))
-        e64 = gj.evaluate(p, n, mu=MU)
+    for name, (p, n) in cases.items():
+        ev = gj.evaluate(p, n, mu=MU)
+        out[name] = {"points": p, "normals": n, **{field: np.asarray(getattr(ev, field)) for field in FLOAT64_FIELDS}}
+    return out
+
+
+@pytest.fixture(scope="module")
+def float32_vs_float64(float64_results):
+    """2,000 random 4-finger grasps each of the box and the sphere: float32 against float64, no
+    float64 anywhere on the float32 path."""
+    out = {}
+    cases = _float64_grasps()
+    for name in ("box", "sphere"):
+        p, n = cases[name]
+        e64 = float64_results[name]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # unconverged LPs, counted below
             e32 = gj.evaluate(p.astype(np.float32), n.astype(np.float32), mu=np.float32(MU))
         assert e32.quality.dtype == jnp.float32 and e32.delta.dtype == jnp.float32
-        delta, tm = np.asarray(e64.delta), np.asarray(e64.torque_margin)
+        delta, tm = np.asarray(e64["delta"]), np.asarray(e64["torque_margin"])
         clear = ((delta > -BAND) & (tm > -BAND)) == ((delta > BAND) & (tm > BAND))
         bounded = np.asarray(e32.quality_status) == gj.Status.BOUNDED
         out[name] = {
             # BOUNDED: unfinished, but weak duality proved delta* < 0 (a bound float64 must respect).
-            "bounded_wrong": int(np.sum(bounded & (np.asarray(e64.equilibrium)
+            "bounded_wrong": int(np.sum(bounded & (np.asarray(e64["equilibrium"])
                                                    | (delta > np.asarray(e32.delta, np.float64) + 1e-6)))),
-            "disagree": int(np.sum(clear & (np.asarray(e32.force_closure) != np.asarray(e64.force_closure)))),
-            "dq": np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64.quality)),
+            "disagree": int(np.sum(clear & (np.asarray(e32.force_closure) != np.asarray(e64["force_closure"])))),
+            "dq": np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64["quality"])),
             "unconverged": int(np.sum(~e32.converged)),
         }
     return out
@@ -202,20 +247,16 @@ def test_float32_verdicts_and_quality(float32_vs_float64):
         assert r["unconverged"] <= 0.02 * len(r["dq"]), name
 
 
-def test_float32_unfinished_quality_lp_bounded_by_its_dual():
+def test_float32_unfinished_quality_lp_bounded_by_its_dual(float64_results):
     """A box grasp whose only equilibrium is the first contact alone (delta* = -1, an ill-posed LP):
     in float32 its quality LP ends unfinished after the full budget, and the dual of its best
     iterate proves delta* < 0 (``BOUNDED``): not force-closure, Q = 0, converged, with a valid
     certificate, instead of an unconverged grasp."""
-    p = np.array([[0.13945439457893372, 0.6000000238418579, -0.17477265000343323],
-                  [0.2870014011859894, 0.24085910618305206, 0.4000000059604645],
-                  [-0.9510809183120728, -0.6000000238418579, 0.02870021015405655],
-                  [-0.2120772749185562, -0.6000000238418579, -0.38295602798461914]], np.float32)
-    n = np.array([[0, 1, 0], [0, 0, 1], [0, -1, 0], [0, -1, 0]], np.float32)
+    p, n = UNFINISHED_GRASP
     ev = gj.evaluate(p, n, mu=np.float32(MU))
     assert ev.quality_status in (gj.Status.BOUNDED, gj.Status.OPTIMAL)  # BOUNDED on this CPU
     assert ev.converged and not ev.force_closure and ev.quality == 0.0
-    assert ev.delta < -1e-4 and ev.delta >= gj.evaluate(p.astype(np.float64), n.astype(np.float64), mu=MU).delta - 1e-6
+    assert ev.delta < -1e-4 and ev.delta >= float64_results["unfinished"]["delta"] - 1e-6
     w = reference.wrenches(p.astype(np.float64), n.astype(np.float64), MU, 8)
     cert = np.asarray(ev.certificate, np.float64)
     assert np.linalg.norm(cert) == pytest.approx(1.0, abs=1e-6)
@@ -260,21 +301,21 @@ def test_float32_quality_when_the_torques_lie_in_a_half_space():
         assert abs(float(q32[k]) - q64) <= 1e-4, k
 
 
-def test_float32_on_grasps_whose_torques_lie_in_a_half_space():
+def test_float32_on_grasps_whose_torques_lie_in_a_half_space(float64_results):
     """300 random grasps on the side of a cylinder (every one's torques about c_1 lie in a
     half-space: ill-posed quality LPs, the hardest float32 case): ``evaluate`` and ``quality`` in
     float32 against float64, |dQ| <= 1e-4 and equal verdicts outside the band."""
-    p, n = grasps(sample_cylinder_side, 300, 4, np.random.default_rng(27))
-    e64 = gj.evaluate(p, n, mu=MU)
+    p, n = _float64_grasps()["cylinder"]
+    e64 = float64_results["cylinder"]
     p32, n32 = p.astype(np.float32), n.astype(np.float32)
     e32 = gj.evaluate(p32, n32, mu=np.float32(MU))
     q32 = np.asarray(gj.quality(p32, n32, mu=np.float32(MU)), np.float64)
-    delta, tm = np.asarray(e64.delta), np.asarray(e64.torque_margin)
+    delta, tm = np.asarray(e64["delta"]), np.asarray(e64["torque_margin"])
     clear = ((delta > -BAND) & (tm > -BAND)) == ((delta > BAND) & (tm > BAND))
     assert np.all(e32.converged)
-    assert np.max(np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64.quality))) <= 1e-4
-    assert np.max(np.abs(q32 - np.asarray(e64.quality))) <= 1e-4
-    assert not np.any(clear & (np.asarray(e32.force_closure) != np.asarray(e64.force_closure)))
+    assert np.max(np.abs(np.asarray(e32.quality, np.float64) - np.asarray(e64["quality"]))) <= 1e-4
+    assert np.max(np.abs(q32 - np.asarray(e64["quality"]))) <= 1e-4
+    assert not np.any(clear & (np.asarray(e32.force_closure) != np.asarray(e64["force_closure"])))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -286,6 +327,9 @@ def test_float32_on_grasps_whose_torques_lie_in_a_half_space():
 
 #: Set in the child process, whose run of this file must not start children of its own.
 _ISA_CHILD = "GRASP_JAX_TEST_ISA"
+#: The parent's float64 results (``float64_results``) for the child, an ``.npz`` file: the
+#: reference the float32 results are compared with, not what the child checks.
+_FLOAT64_FILE = "GRASP_JAX_TEST_FLOAT64"
 FLOAT32_TESTS = (
     "test_float32_verdicts_and_quality",
     "test_float32_targets",
@@ -298,8 +342,10 @@ FLOAT32_TESTS = (
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="--xla_cpu_max_isa is x86-64's")
 @pytest.mark.skipif(bool(os.environ.get(_ISA_CHILD)), reason="already under a narrower instruction set")
 @pytest.mark.parametrize("isa", ["AVX2", "SSE4_2"])
-def test_float32_under_a_narrower_instruction_set(isa):
-    env = dict(os.environ, **{_ISA_CHILD: isa})
+def test_float32_under_a_narrower_instruction_set(isa, float64_results, tmp_path):
+    np.savez(tmp_path / "float64.npz",
+             **{f"{name}.{field}": v for name, r in float64_results.items() for field, v in r.items()})
+    env = dict(os.environ, **{_ISA_CHILD: isa, _FLOAT64_FILE: str(tmp_path / "float64.npz")})
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_cpu_max_isa={isa}".strip()
     tests = [f"{__file__}::{name}" for name in FLOAT32_TESTS]
     proc = subprocess.run(
