@@ -350,7 +350,9 @@ def glass():
 
 def test_candidates_face_the_palm(default_hand):
     with float64_scope():
-        frames = np.asarray(hands.forward(default_hand, np.array([0, 0, 0, 1.0, 0, 0, 0]), default_hand.open_joints))
+        # jitted: op by op it compiled 57 programs (the tests above compile this one)
+        frames = np.asarray(jax.jit(hands.forward)(default_hand, np.array([0, 0, 0, 1.0, 0, 0, 0]),
+                                                   default_hand.open_joints))
     f, k = default_hand.candidate_point.shape[:2]
     assert f == 3 and k >= 4
     for i, link in enumerate(default_hand.finger_link):
