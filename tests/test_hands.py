@@ -383,7 +383,7 @@ def test_sdf_against_trimesh(glass):
 
 
 def test_penetration_against_trimesh(default_hand, glass):
-    """The sphere penetration is zero when the posed collision geometry is outside the mesh (trimesh)
+    """The penetration is zero when the posed collision geometry is outside the mesh (trimesh)
     and positive when the hand is pushed through it."""
     import trimesh
 

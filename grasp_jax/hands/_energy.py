@@ -5,8 +5,8 @@
 * ``-closure``: grasp_jax's own objective on those contacts (``_objectives.objective_one``, the
   same LPs as ``gj.optimize``; or DexGraspNet's energy with ``kind="dfc"``);
 * distance: the contacts' distances to the surface (less a small gap);
-* penetration: the hand's collision spheres into the object (SDF) and the object's surface
-  points into the spheres;
+* penetration: the hand's surface samples into the object (SDF) and the object's surface points
+  into the hand's collision spheres;
 * self-collision: spheres of different fingers that overlap.
 
 Lengths are in units of the object's radius. Joint limits are kept by projection (the optimizer
@@ -36,9 +36,8 @@ class Weights:
     distance: float = 300.0
     penetration: float = 100.0
     self_collision: float = 10.0
-    #: Sphere penetration (m) left unpenalized: the spheres lie inside the links, so a little of it
-    #: lets a fingertip touch where a neighbouring link's sphere grazes the object.
-    allowance: float = 3e-4
+    #: Depth (m) of the hand's surface in the object left unpenalized.
+    allowance: float = 1e-4
     #: Distance (m) the contacts are pulled to: a hair off the surface, so that the parts of the
     #: fingertips between the spheres stay out of the object (the squeeze configuration closes it).
     gap: float = 5e-4
@@ -61,10 +60,11 @@ def spheres(hand: Hand, frames):
 
 
 def penetration(hand: Hand, geom: ObjectGeometry, frames, allowance=0.0) -> tuple[jax.Array, jax.Array]:
-    """``(sum of depths, largest depth)`` (m) of the hand's collision spheres into the object
-    (less ``allowance``) and of the object's surface points into the spheres."""
+    """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object (less
+    ``allowance``) and of the object's surface points into the hand's collision spheres."""
+    surface = transform_points(frames, hand.surface_link, hand.surface_point)
+    into_object = jax.nn.relu(-allowance - jax.vmap(lambda x: distance(geom, x))(surface))
     centers, radii = spheres(hand, frames)
-    into_object = jax.nn.relu(radii - allowance - jax.vmap(lambda x: distance(geom, x))(centers))
     gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
     into_hand = jax.nn.relu(radii[None] - gap)
     return jnp.sum(into_object) + jnp.sum(into_hand), jnp.maximum(jnp.max(into_object), jnp.max(into_hand))

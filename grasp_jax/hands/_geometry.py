@@ -4,7 +4,9 @@
   its last moving joint with the links fixed to it;
 * which way a joint closes: towards its larger limit (from 0, or the middle of the range);
 * collision spheres: inside each collision element, touching its surface, spread by
-  farthest-point sampling;
+  farthest-point sampling (the object's points into the hand; finger-finger collision);
+* surface samples: points of each element's surface about :data:`SPACING` apart (the hand into
+  the object);
 * contact candidates: points of the distal body's surface whose outward normal faces the flexion
   direction of the finger's last joint, a few per finger;
 * the palm frame: centre, normal (where the fingers close to) and the fingers' direction.
@@ -25,10 +27,20 @@ SAMPLES = 1000
 #: its area over the area a sphere covers).
 MAX_RADIUS = 0.012
 SPHERES = (3, 12)
+#: Spacing (m) of the surface samples, and their number per element, at least and at most. A flat
+#: face pressed on a convex object of radius R hides a depth of about SPACING^2 / (8 R) between
+#: samples (0.06 mm at R = 3 cm).
+SPACING = 0.004
+SURFACE = (8, 48)
+#: A joint whose range about 0 has sides within this ratio of each other is a side joint.
+SIDE_SYMMETRY = 0.8
 #: Contact candidates per finger, and the cosine between a candidate's normal and the flexion
 #: direction above which a surface point counts as palm-facing.
 CANDIDATES = 32
 FACING_COS = 0.6
+#: A candidate touching a ball of radius OBJECT_RADIUS (m) lets the rest of its body enter the
+#: ball by at most EXPOSED (m): touching there does not push another part of the fingertip in.
+EXPOSED, OBJECT_RADIUS = 5e-4, 0.1
 
 
 @functools.cache
@@ -114,6 +126,22 @@ def link_spheres(collisions, num_links: int, seed: int = 0):
     return np.concatenate(centers), np.concatenate(radii), np.concatenate(links).astype(np.int32)
 
 
+def surface_samples(collisions, seed: int = 0):
+    """``(points (N, 3), links (N,))``: points of each collision element's surface about
+    :data:`SPACING` apart (farthest-point sampling, from a corner of its hull), in the link frames."""
+    points, links = [], []
+    for c in collisions:
+        m = element_mesh(c)
+        count = int(np.clip(round(m.area / SPACING**2), *SURFACE))
+        p, _ = _sample([m], 40 * count, seed)
+        p = np.concatenate([np.asarray(m.convex_hull.vertices), p])
+        points.append(p[farthest(p, count)])
+        links.append(np.full(count, c.link))
+    if not points:
+        return np.zeros((0, 3)), np.zeros(0, np.int32)
+    return np.concatenate(points), np.concatenate(links).astype(np.int32)
+
+
 def fingers(parent: tuple, kind: tuple, collisions) -> tuple[list[int], list[int]]:
     """``(distal links, finger of each link)``: one finger per distinct distal body of a leaf
     reached through a moving joint; ``finger[l] = -1`` for the palm's links."""
@@ -155,13 +183,16 @@ def body_links(body: int, parent: tuple, kind: tuple) -> list[int]:
 def closing_signs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """``(J,)`` +1 where a joint closes the hand as its value rises, -1 where as it falls: the
     side of its range farther from 0 (from the middle when 0 is outside the range; continuous
-    joints +1)."""
+    joints +1); 0 for a side joint (abduction: a range about 0 whose sides are within
+    :data:`SIDE_SYMMETRY` of each other), which neither opens nor closes the hand."""
     ref = np.clip(0.0, lower, upper)
     ref = np.where((ref == lower) | (ref == upper), np.where(np.isfinite(lower + upper), 0.5 * (lower + upper), 0.0),
                    ref)
     ref = np.where((lower <= 0) & (upper >= 0), 0.0, ref)
     up, down = upper - ref, ref - lower
-    return np.where(np.isfinite(up) & (down > up), -1.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        side = (lower < 0) & (upper > 0) & (np.minimum(up, down) >= SIDE_SYMMETRY * np.maximum(up, down))
+    return np.where(side & np.isfinite(up + down), 0.0, np.where(np.isfinite(up) & (down > up), -1.0, 1.0))
 
 
 def opened(lower: np.ndarray, upper: np.ndarray, closing: np.ndarray, share: float = 0.5) -> np.ndarray:
@@ -183,9 +214,13 @@ def candidates(body_meshes, joint_origin, joint_axis, prismatic: bool, seed: int
     flex = flex / np.maximum(np.linalg.norm(flex, axis=1, keepdims=True), 1e-12)
     facing = np.sum(normals * flex, axis=1)
     reach = np.linalg.norm(arm, axis=1)
-    keep = np.flatnonzero((facing > FACING_COS) & (reach >= np.median(reach)))
+    # how deep the rest of the body enters a ball of radius OBJECT_RADIUS touching each point
+    # (about: its height over the tangent plane less the ball's drop there)
+    offset = points[None] - points[:, None]
+    proud = np.max(np.einsum("kij,kj->ki", offset, normals) - np.sum(offset**2, axis=-1) / (2 * OBJECT_RADIUS), axis=1)
+    keep = np.flatnonzero((facing > FACING_COS) & (reach >= np.median(reach)) & (proud <= EXPOSED))
     if len(keep) < CANDIDATES:
-        keep = np.argsort(-(facing + reach / reach.max()))[: 4 * CANDIDATES]
+        keep = np.argsort(-(facing + reach / reach.max()) + proud / EXPOSED)[: 4 * CANDIDATES]
     pick = keep[farthest(points[keep], CANDIDATES, int(np.argmax(reach[keep])))]
     if len(pick) < CANDIDATES:
         pick = np.resize(pick, CANDIDATES)

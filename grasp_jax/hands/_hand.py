@@ -53,7 +53,7 @@ class Tree:
 @dataclasses.dataclass(frozen=True)
 class Hand:
     """A hand: ``L`` links, ``J`` actuated joints, ``F`` fingers with ``K`` contact candidates each,
-    ``S`` collision spheres.
+    ``S`` collision spheres, ``N`` surface samples.
 
     Attributes:
         origin: ``(L, 4, 4)`` each link's joint frame in its parent's frame (identity for the root).
@@ -64,6 +64,8 @@ class Hand:
         sphere_center: ``(S, 3)`` collision spheres in their links' frames; ``sphere_radius: (S,)``.
         sphere_link: ``(S,) int32`` link of each sphere; ``sphere_finger: (S,) int32`` the finger
             it belongs to (``-1``: palm).
+        surface_point: ``(N, 3)`` samples of the collision surfaces in their links' frames, about
+            4 mm apart; ``surface_link: (N,) int32`` their links.
         candidate_point, candidate_normal: ``(F, K, 3)`` contact candidates and outward normals in
             the frame of link ``finger_link[f]``.
         palm: ``(3, 3)`` rows: the palm's centre, its normal (the side the fingers close towards)
@@ -71,7 +73,8 @@ class Hand:
         open_joints: ``(J,)`` the opened pre-grasp configuration starts jitter (half-way from 0
             to the opening limits).
         closing: ``(J,)`` +1 or -1: the sign of the joint motion that closes the hand (the side
-            of the larger limit: positive on Allegro and LEAP, negative on the Barrett file).
+            of the larger limit: positive on Allegro and LEAP, negative on the Barrett file); 0
+            for a side (abduction) joint, whose range is about symmetric about 0.
         parent: static ``(L,)`` parent link of each link (``-1`` for the root).
         joint_kind: static ``(L,)`` :data:`FIXED`, :data:`REVOLUTE` or :data:`PRISMATIC`.
         source: static ``(L,)`` actuated joint that drives the link's joint (``-1`` if fixed).
@@ -91,6 +94,8 @@ class Hand:
     sphere_radius: jax.Array
     sphere_link: jax.Array
     sphere_finger: jax.Array
+    surface_point: jax.Array
+    surface_link: jax.Array
     candidate_point: jax.Array
     candidate_normal: jax.Array
     palm: jax.Array

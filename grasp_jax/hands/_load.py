@@ -53,9 +53,10 @@ def load(spec=DEFAULT_NAME, *, candidates=None, seed: int = 0) -> Hand:
     closing = geo.closing_signs(lower, upper)
     open_joints = geo.opened(lower, upper, closing)
     centers, radii, links = geo.link_spheres(tree.collisions, len(tree.order), seed)
+    surface, surface_link = geo.surface_samples(tree.collisions, seed)
     points, normals = [], []
     for b in distal:
-        sign = closing[tree.source[b]] * np.sign(tree.multiplier[b])
+        sign = (closing[tree.source[b]] or 1.0) * np.sign(tree.multiplier[b])
         p, n = geo.candidates(_in_body_frame(meshes[b], b, bodies[b], tree), np.zeros(3), sign * tree.axis[b],
                               tree.kind[b] == PRISMATIC, seed)
         points.append(p)
@@ -64,6 +65,7 @@ def load(spec=DEFAULT_NAME, *, candidates=None, seed: int = 0) -> Hand:
         origin=tree.origin, axis=tree.axis, multiplier=tree.multiplier, offset=tree.offset, lower=lower,
         upper=upper, sphere_center=centers, sphere_radius=radii, sphere_link=links,
         sphere_finger=np.asarray([finger[k] for k in links], dtype=np.int32).reshape(-1),
+        surface_point=surface, surface_link=surface_link,
         candidate_point=np.stack(points), candidate_normal=np.stack(normals), palm=np.zeros((3, 3)),
         open_joints=open_joints, closing=closing, parent=tree.parent, joint_kind=tree.kind, source=tree.source,
         finger_link=tuple(distal), link_names=tuple(tree.order), joint_names=tree.joint_names,

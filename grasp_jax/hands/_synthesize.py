@@ -43,8 +43,9 @@ FINAL_RATE = 0.05
 #: Segments of the step loop (one compiled call each; the progress bar advances per segment).
 SEGMENTS = 10
 #: Starts: joints jittered from the opened configuration towards closing by up to this share of
-#: their range; the palm's plane this far (m) beyond the object's extent.
-OPEN_JITTER, STANDOFF = 0.25, (0.005, 0.02)
+#: their range; the hand's surface this far (m) from the object, moved back along its approach
+#: direction in at most CLEARING_ROUNDS rounds.
+OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.25, (0.005, 0.02), 8
 #: Pre-grasp and squeeze: joints moved (rad, largest joint) away from / into the object.
 PREGRASP, SQUEEZE = 0.3, 0.1
 #: Hand surface samples per collision element for the exact penetration, and the deepest of
@@ -117,9 +118,9 @@ def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: floa
 
 def initial_configurations(hand: Hand, geom, starts: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``(pose (S, 7), joints (S, J))``: from random directions ``u``, the palm facing the object
-    (its normal along ``-u``) with its plane :data:`STANDOFF` beyond the object's extent along
-    ``u``, the fingers' centre over the object's centre, a random roll; the joints opened and
-    jittered towards closing."""
+    (its normal along ``-u``), the fingers' centre over the object's centre, a random roll, the
+    hand :data:`STANDOFF` clear of the object along ``u``; the joints opened and jittered towards
+    closing."""
     rng = np.random.default_rng(seed)
     lo = np.where(np.isfinite(hand.lower), hand.lower, -np.pi)
     hi = np.where(np.isfinite(hand.upper), hand.upper, np.pi)
@@ -142,10 +143,23 @@ def initial_configurations(hand: Hand, geom, starts: int, seed: int) -> tuple[np
         angle = rng.uniform(0, 2 * np.pi)
         roll = math.cos(angle) * roll + math.sin(angle) * np.cross(u[s], roll)
         rot = np.stack([-u[s], roll, np.cross(-u[s], roll)], axis=1) @ local.T
-        target = center + u[s] * (extent[s] + rng.uniform(*STANDOFF))
-        pose[s, :3] = target - rot @ anchor
+        pose[s, :3] = center + u[s] * extent[s] - rot @ anchor
         pose[s, 3:] = np.asarray(matrix_to_quat(rot))
+    standoff = rng.uniform(*STANDOFF, starts)
+    with float64_scope():
+        for _ in range(CLEARING_ROUNDS):  # back along u until the hand clears the object by standoff
+            short = standoff - np.asarray(map_grasps(_clearance_one, (pose, joints), (hand, geom), (starts,)))
+            if (short <= 1e-4).all():
+                break
+            pose[:, :3] += u * np.maximum(short, 0.0)[:, None]
     return pose, joints
+
+
+def _clearance_one(pose, joints, shared):
+    """The smallest signed distance ``()`` of the hand's surface samples to the object."""
+    hand, geom = shared
+    world = transform_points(forward(hand, pose, joints), hand.surface_link, hand.surface_point)
+    return jnp.min(jax.vmap(lambda x: distance(geom, x))(world))
 
 
 def _segment(*args, treedef, kind, num_edges, iterations, contact, weights, length, total):
