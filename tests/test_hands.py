@@ -442,9 +442,32 @@ def test_save_and_load(synthesized, tmp_path, suffix):
     for name, value in synthesized.columns().items():
         np.testing.assert_array_equal(getattr(back, name), value)
     assert back.joint_names == synthesized.joint_names and back.hand == synthesized.hand
+    assert back.object_path == synthesized.object_path
     assert [p.name for p in tmp_path.iterdir()] == [f"grasps{suffix}"]
     with pytest.raises(ValueError, match="must end in"):
         synthesized.save(tmp_path / "grasps.txt")
+
+
+def test_distinct_drops_copies(synthesized):
+    """A grasp within 1 cm and 15 degrees of a better kept one is a copy; a plain loop agrees."""
+    import dataclasses
+
+    rng = np.random.default_rng(0)
+    position = rng.normal(size=(8, 3)) * 0.05
+    position[1] = position[0] + 0.004  # a copy of 0 (7 mm away, same orientation)
+    quaternion = np.tile([1.0, 0, 0, 0], (8, 1))
+    turn = np.radians(40) / 2
+    position[3], quaternion[3] = position[2], [np.cos(turn), np.sin(turn), 0, 0]  # same place, turned 40 degrees
+    r = dataclasses.replace(synthesized, position=position, quaternion=quaternion, valid=np.ones(8, bool),
+                            quality=np.linspace(1, 0.3, 8))
+    kept = r.distinct()
+    assert 1 not in kept and {0, 2, 3} <= set(kept) and list(kept) == sorted(kept)
+    expect = []
+    for i in range(8):
+        if not any(np.linalg.norm(position[i] - position[k]) <= 0.01
+                   and 2 * np.degrees(np.arccos(min(1.0, abs(quaternion[i] @ quaternion[k])))) <= 15 for k in expect):
+            expect.append(i)
+    assert list(kept) == expect
 
 
 def test_second_object_compiles_nothing(default_hand, glass, synthesized):

@@ -247,6 +247,7 @@ def test_mesh_uv_seams_are_merged(tmp_path):
     (tmp_path / "seams.obj").write_text("\n".join(lines) + "\n")
     obj = objects.load(tmp_path / "seams.obj")
     assert obj.mesh.is_watertight and obj.warnings == () and len(obj.mesh.vertices) == 8
+    assert obj.source == str((tmp_path / "seams.obj").resolve())  # results name the file they came from
 
 
 def test_mesh_errors(tmp_path):

@@ -50,7 +50,7 @@ def run(args) -> int:
     if args.out is not None:
         storage.check_output_path(args.out)
     source = storage.ResultFile(args.file)
-    spec = args.object or source.metadata.get("object")
+    spec = args.object or source.metadata.get("object_path") or source.metadata.get("object")
     if spec is None:
         raise ValueError(f"{str(args.file)!r} names no object: pass --object")
     try:

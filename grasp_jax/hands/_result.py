@@ -49,7 +49,8 @@ class HandGraspResult:
         energy: ``(S, steps)`` the energy of each step's iterate (the grasp is the iterate of the
             lowest).
         initial_position, initial_quaternion, initial_joints: the starts.
-        joint_names, hand, object_name, objective_name, contact, mu, steps, seconds: static.
+        joint_names, hand, object_name, objective_name, contact, mu, steps, seconds: static;
+        object_path: the mesh file the object was read from (``""`` if none).
     """
 
     position: np.ndarray
@@ -77,6 +78,7 @@ class HandGraspResult:
     mu: float = 0.5
     steps: int = 0
     seconds: float = 0.0
+    object_path: str = ""
 
     def __len__(self) -> int:
         return len(self.valid)
@@ -94,6 +96,21 @@ class HandGraspResult:
         index = np.flatnonzero(self.valid)
         return index[np.argsort(-self.quality[index], kind="stable")][:count]
 
+    def distinct(self, position: float = 0.01, angle: float = 15.0) -> np.ndarray:
+        """Indices of valid grasps of which none is a copy of another, highest Q first: a grasp
+        is a copy of a kept one when its wrist lies within ``position`` (m) and its orientation
+        within ``angle`` (degrees) of it."""
+        kept: list[int] = []
+        cos_half = np.cos(np.radians(angle) / 2)
+        for i in self.best(len(self)):
+            if kept:
+                near = np.linalg.norm(self.position[kept] - self.position[i], axis=1) <= position
+                turned = np.abs(self.quaternion[kept] @ self.quaternion[i]) >= cos_half
+                if (near & turned).any():
+                    continue
+            kept.append(int(i))
+        return np.asarray(kept, dtype=np.int64)
+
     def summary(self) -> dict:
         """Numbers a person looks at first."""
         valid = self.valid.astype(bool)
@@ -102,6 +119,7 @@ class HandGraspResult:
             "valid_fraction": float(valid.mean()) if len(self) else 0.0,
             "force_closure_fraction": float(self.force_closure.mean()) if len(self) else 0.0,
             "quality_median_valid": float(np.median(self.quality[valid])) if valid.any() else 0.0,
+            "distinct_valid": len(self.distinct()),
             "penetration_median_mm": float(1e3 * np.median(self.penetration)) if len(self) else 0.0,
             "status": {s.name.lower(): c for s, c in HandStatus.counts(self.status).items()},
             "seconds": self.seconds,
@@ -120,7 +138,8 @@ class HandGraspResult:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in skip}
 
     def metadata(self) -> dict:
-        return storage.metadata(hand=self.hand, object=self.object_name, joint_names=list(self.joint_names),
+        return storage.metadata(hand=self.hand, object=self.object_name, object_path=self.object_path,
+                                joint_names=list(self.joint_names),
                                 objective=self.objective_name, contact=self.contact, mu=self.mu, steps=self.steps,
                                 seconds=self.seconds, quaternion="wxyz",
                                 status={s.name: s.message for s in HandStatus},
@@ -171,4 +190,5 @@ def load(path) -> HandGraspResult:
             cols[name] = np.asarray(col.to_numpy(zero_copy_only=False)).reshape((table.num_rows, *shape))
     return HandGraspResult(**cols, joint_names=tuple(meta["joint_names"]), hand=meta["hand"],
                            object_name=meta["object"], objective_name=meta["objective"], contact=meta["contact"],
-                           mu=meta["mu"], steps=meta["steps"], seconds=meta["seconds"])
+                           mu=meta["mu"], steps=meta["steps"], seconds=meta["seconds"],
+                           object_path=meta.get("object_path", ""))

@@ -113,6 +113,7 @@ def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: floa
     return HandGraspResult(
         **result, energy=energies, initial_position=pose[:, :3], initial_quaternion=pose[:, 3:],
         initial_joints=joints, joint_names=hand.joint_names, hand=hand.name, object_name=str(obj.name),
+        object_path=getattr(obj, "source", ""),
         objective_name=objective, contact=contact, mu=float(mu), steps=steps, seconds=time.perf_counter() - t0)
 
 

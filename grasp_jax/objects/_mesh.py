@@ -9,6 +9,8 @@ average. What could make results unreliable is said in ``Mesh.warnings``.
 
 from __future__ import annotations
 
+import dataclasses
+
 import functools
 import warnings as _warnings
 from dataclasses import dataclass
@@ -44,6 +46,7 @@ class Mesh:
             surface when the mesh is open (has boundary edges) or encloses no positive volume.
         radius: largest distance from ``center`` to a vertex.
         warnings: reasons results may be unreliable.
+        source: the file it was read from, absolute (``""`` when built from a ``trimesh``).
     """
 
     name: str
@@ -51,6 +54,7 @@ class Mesh:
     center: np.ndarray
     radius: float
     warnings: tuple[str, ...] = ()
+    source: str = ""
     dim: ClassVar[int] = 3
 
     @classmethod
@@ -71,7 +75,8 @@ class Mesh:
             raise ObjectError(f"{path}: holds no triangle mesh (got {type(loaded).__name__}); give a "
                               "file with faces.")
         notes = [f"trimesh: {w.message}" for w in caught if not issubclass(w.category, DeprecationWarning)]
-        return cls.from_trimesh(loaded, name=name or path.stem, where=str(path), notes=notes)
+        mesh = cls.from_trimesh(loaded, name=name or path.stem, where=str(path), notes=notes)
+        return dataclasses.replace(mesh, source=str(path.resolve()))
 
     @classmethod
     def from_trimesh(cls, mesh: trimesh.Trimesh, *, name: str = "mesh", where: str | None = None,
