@@ -5,11 +5,13 @@ For each hand (Allegro, LEAP, the built-in default hand) and each YCB object of 
 ``objective="closure"`` (grasp_jax's force-closure objective, the same LPs as ``gj.optimize``)
 and ``objective="dfc"`` (DexGraspNet's energy), scored by ``gj.evaluate`` (soft contacts,
 mu = 0.5) on the mesh. Valid = force-closure, penetration <= 1 mm, every contact within 2 mm.
-Reports valid rate, Q, penetration, valid grasps per second (compilation included) and the
-programs compiled for each object (0 after the first object: the SDF grid is data). Writes
+Reports valid rate, Q, penetration, distinct valid grasps (``HandGraspResult.distinct``: none
+within 1 cm and 15 degrees of another's wrist pose), valid grasps per second (compilation
+included; a total per hand and objective over the run) and the programs compiled for each object (0 after the first object: the SDF grid is data). Writes
 ``results.md``, ``results.json`` and ``best_grasps.png``.
 
-    python experiments/hand_grasps.py --starts 256 --steps 100
+    python experiments/hand_grasps.py --hands allegro --starts 256 --steps 80
+    python experiments/hand_grasps.py --hands leap --starts 64 --steps 200 --objects ycb_013_apple ...
 """
 
 from __future__ import annotations
@@ -34,9 +36,16 @@ HANDS = {
     "leap": HANDS_DIR / "leap_hand" / "leap_hand_right.urdf",
     "default": "default",
 }
-#: YCB objects of hand size (largest extent 5 to 12 cm).
-OBJECTS = ("ycb_013_apple", "ycb_017_orange", "ycb_055_baseball", "ycb_005_tomato_soup_can", "ycb_009_gelatin_box",
-           "ycb_010_potted_meat_can", "ycb_061_foam_brick", "ycb_077_rubiks_cube", "ycb_025_mug")
+#: The YCB objects of hand size: every ``ycb_*`` mesh whose largest extent is at most this (m).
+HAND_SIZE = 0.125
+
+
+def hand_size_objects() -> list[str]:
+    names = []
+    for path in sorted(SHARED_MESHES.glob("ycb_*.obj")):
+        if objects.load(path).mesh.extents.max() <= HAND_SIZE:
+            names.append(path.stem)
+    return names
 
 
 def run_one(hand, obj, args, objective):
@@ -48,7 +57,7 @@ def run_one(hand, obj, args, objective):
     return result, {
         "objective": objective, "valid_fraction": s["valid_fraction"],
         "force_closure_fraction": s["force_closure_fraction"], "quality_median_valid": s["quality_median_valid"],
-        "penetration_median_mm": s["penetration_median_mm"],
+        "penetration_median_mm": s["penetration_median_mm"], "distinct_valid": s["distinct_valid"],
         "distance_median_mm": float(1e3 * np.median(np.abs(result.distance).max(axis=1))),
         "seconds": seconds, "valid_per_second": float(result.valid.sum() / seconds),
         "compiled": _batch.STATS["compiled"] - before, "status": s["status"],
@@ -80,11 +89,12 @@ def main():
     ap.add_argument("--starts", type=int, default=256)
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--hands", nargs="+", default=list(HANDS), choices=list(HANDS))
-    ap.add_argument("--objects", nargs="+", default=list(OBJECTS))
+    ap.add_argument("--objects", nargs="+", default=None, help="mesh stems (default: every YCB object of hand size)")
     ap.add_argument("--no-baseline", action="store_true", help="skip DexGraspNet's energy")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     timer = Timer()
+    args.objects = args.objects or hand_size_objects()
     rows, records, best = [], [], []
     for hand_name in args.hands:
         hand = hands.load(HANDS[hand_name])
@@ -97,17 +107,30 @@ def main():
                 print(hand_name, obj_name, objective, result, flush=True)
                 rows.append([hand_name, obj_name, objective, 100 * rec["valid_fraction"],
                              100 * rec["force_closure_fraction"], rec["quality_median_valid"],
-                             rec["penetration_median_mm"], rec["distance_median_mm"], rec["valid_per_second"],
+                             rec["penetration_median_mm"], rec["distance_median_mm"], rec["distinct_valid"],
+                             rec["valid_per_second"],
                              rec["seconds"], rec["compiled"]])
                 if objective == "closure" and len(result.best()):
                     best.append((hand, hand_name, obj_name, obj, result, int(result.best()[0])))
         timer.lap(hand_name)
     header = ["hand", "object", "objective", "valid %", "force-closure %", "Q median (valid)",
-              "penetration median (mm)", "largest contact distance median (mm)", "valid grasps/s",
+              "penetration median (mm)", "largest contact distance median (mm)",
+              "distinct valid (1 cm, 15 deg)", "valid grasps/s",
               "seconds (compile incl.)", "programs compiled"]
+    totals = []
+    for hand_name in args.hands:
+        for objective in ("closure", "dfc"):
+            runs = [r for r in records if r["hand"] == hand_name and r["objective"] == objective]
+            if runs:
+                valid = sum(r["valid_fraction"] * args.starts for r in runs)
+                seconds = sum(r["seconds"] for r in runs)
+                totals.append([hand_name, objective, len(runs), 100 * valid / (args.starts * len(runs)), valid / seconds,
+                               seconds])
     text = (f"# Hand grasps\n\n{args.starts} starts x {args.steps} steps per hand and object; soft contacts, "
             f"mu = 0.5; valid = force-closure, penetration <= 1 mm, contacts within 2 mm.\n\n"
-            + table(header, rows) + "\n\n" + timer.report() + "\n")
+            + table(header, rows) + "\n\n## Over the run (compilation included)\n\n"
+            + table(["hand", "objective", "objects", "valid %", "valid grasps/s", "seconds"], totals) + "\n\n"
+            + timer.report() + "\n")
     print(text)
     write(args.out, text)
     write_json(args.out, {"starts": args.starts, "steps": args.steps, "runs": records})

@@ -183,6 +183,32 @@ def test_hand_grasps():
         sim.simulate_hand(hand, ball, res, workers=1)
 
 
+def test_mjcf_hand_grasps_as_its_urdf(tmp_path):
+    """The built-in hand written as MJCF (by MuJoCo, a free root joint and a floor added) holds
+    and misses the ball as its URDF does."""
+    import mujoco
+
+    from grasp_jax.hands._builtin import default_urdf
+    from grasp_jax.sim._hands import _with_compiler
+
+    hand = _hand()
+    spec = mujoco.MjSpec.from_string(_with_compiler(default_urdf(), "."))
+    spec.compile()
+    xml = tmp_path / "default.xml"
+    text = spec.to_xml()
+    # a floating wrist and a floor: the simulation drops both
+    text = text.replace("<worldbody>", '<worldbody><geom type="plane" size="1 1 0.1" pos="0 0 -1"/>'
+                        '<body name="wrist"><freejoint/>', 1).replace("</worldbody>", "</body></worldbody>", 1)
+    xml.write_text(text)
+    from grasp_jax import hands
+
+    mj_hand = hands.load(xml)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    res = _hand_grasps(mj_hand, [[0, 0, -0.042], [0.5, 0, 0]], [[1, 0, 0, 0], [1, 0, 0, 0]])
+    r = sim.simulate_hand(mj_hand, ball, res, workers=1)
+    assert r.success.tolist() == [True, False] and set(mj_hand.joint_names) == set(hand.joint_names)
+
+
 def test_simulate_command_adds_the_columns(tmp_path, box, capsys):
     """``grasp-jax simulate FILE``: the jaw file gains the columns in place (the centred grasp
     holds, the one beside the box does not); a file without jaw or hand columns is one error line."""

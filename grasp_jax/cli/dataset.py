@@ -39,7 +39,7 @@ def add_parser(subparsers):
     opt.add_robust(p)
     h = p.add_argument_group("hand grasps (grasp_jax.hands)")
     h.add_argument("--hand", default=None, metavar="HAND",
-                   help="synthesize this hand's grasps of every object instead of sampling contacts: a URDF file, "
+                   help="synthesize this hand's grasps of every object instead of sampling contacts: a URDF or MJCF (.xml) file, "
                         "or 'default' (a small built-in 3-finger hand of primitives); soft contacts by default")
     h.add_argument("--starts", type=opt.integer(1, "an integer >= 1"), default=None,
                    help="with --hand: starts optimized per object, one row each (default 256)")

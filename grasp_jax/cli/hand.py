@@ -20,7 +20,7 @@ def add_parser(subparsers):
     p.add_argument("object", metavar="OBJECT", help="built-in name or mesh file (3D)")
     g = p.add_argument_group("hand and optimizer")
     g.add_argument("--hand", default="default", metavar="HAND",
-                   help="a URDF file, or 'default' (a small built-in 3-finger hand of primitives)")
+                   help="a URDF or MJCF (.xml) file, or 'default' (a small built-in 3-finger hand of primitives)")
     g.add_argument("--starts", type=opt.integer(1, "an integer >= 1"), default=256, help="starts optimized at once")
     g.add_argument("--steps", type=opt.integer(1, "an integer >= 1"), default=200, help="optimizer steps")
     g.add_argument("--objective", choices=("closure", "dfc"), default="closure",

@@ -29,7 +29,7 @@ def add_parser(subparsers):
     p.add_argument("--object", default=None,
                    help="the object's mesh (default: the file's metadata; a dataset's own objects)")
     p.add_argument("--hand", default=None, metavar="HAND",
-                   help="for hand grasps: the URDF file, or 'default' (default: the file's hand if built in)")
+                   help="for hand grasps: the URDF or MJCF file, or 'default' (default: the file's hand if built in)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write here instead of replacing FILE (same format; not for a dataset folder)")
     opt.add_seed(p, "seed of the simulation")

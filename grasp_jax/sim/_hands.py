@@ -1,8 +1,10 @@
-"""A URDF hand in MuJoCo, and :func:`simulate_hand` for the grasps of :mod:`grasp_jax.hands`.
+"""A URDF or MJCF hand in MuJoCo, and :func:`simulate_hand` for the grasps of :mod:`grasp_jax.hands`.
 
-The hand's URDF is read by MuJoCo with a compiler block (balanced inertias, mesh paths kept,
-visual elements dropped); its root link is fixed at the world's origin, and each grasp places the
-object at the inverse of the grasp's wrist pose instead. Every actuated joint gets a position
+A URDF is read by MuJoCo with a compiler block (balanced inertias, mesh paths kept, visual
+elements dropped); an MJCF file as it is, its root body moved to the origin without its free
+joint and its floor planes dropped (the root as :mod:`grasp_jax.hands` reads it). The root is
+fixed at the world's origin, and each grasp places the object at the inverse of the grasp's wrist
+pose instead. Every actuated joint gets a position
 actuator of gain ``Protocol.hand_kp`` and damping ``Protocol.hand_kv``; the controls move from the
 pre-grasp to the grasp to the squeeze configuration, then the forces pull along the object's axes.
 """
@@ -39,6 +41,29 @@ def _with_compiler(text: str, folder: str) -> str:
     return out
 
 
+def _hand_spec(hand):
+    """The hand's ``MjSpec``: its URDF with the compiler block, or its MJCF file with the root at
+    the origin."""
+    import mujoco
+
+    path = getattr(hand, "path", "")
+    if not path.lower().endswith(".xml"):
+        text, folder = _urdf(hand)
+        return mujoco.MjSpec.from_string(_with_compiler(text, folder))
+    spec = mujoco.MjSpec.from_file(path)
+    for geom in list(spec.geoms):  # visual geoms and floors
+        if (geom.contype == 0 and geom.conaffinity == 0) or geom.type in (mujoco.mjtGeom.mjGEOM_PLANE,
+                                                                          mujoco.mjtGeom.mjGEOM_HFIELD):
+            spec.delete(geom)
+    children = list(spec.worldbody.bodies)
+    if len(children) == 1 and not list(spec.worldbody.geoms):  # that body is the wrist
+        root = children[0]
+        root.pos, root.quat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]
+        for joint in list(root.joints):
+            spec.delete(joint)
+    return spec
+
+
 def _contact(geom, protocol: Protocol, bits: tuple[int, int]) -> None:
     geom.friction = [protocol.friction, protocol.torsion, 1e-4]
     geom.condim = 4
@@ -54,8 +79,7 @@ def hand_xml(hand, obj, protocol: Protocol) -> tuple[str, list[str]]:
     bodies)``."""
     import mujoco
 
-    text, folder = _urdf(hand)
-    spec = mujoco.MjSpec.from_string(_with_compiler(text, folder))
+    spec = _hand_spec(hand)
     spec.option.timestep = protocol.timestep
     spec.option.gravity = [0.0, 0.0, 0.0]
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -68,7 +92,7 @@ def hand_xml(hand, obj, protocol: Protocol) -> tuple[str, list[str]]:
     known = {j.name for j in spec.joints}
     for name in hand.joint_names:
         if name not in known:
-            raise ValueError(f"the hand's URDF has no joint {name!r}")
+            raise ValueError(f"the hand's description has no joint {name!r}")
         act = spec.add_actuator()
         act.name, act.target, act.trntype = f"drive_{name}", name, mujoco.mjtTrn.mjTRN_JOINT
         act.set_to_position(kp=protocol.hand_kp, kv=protocol.hand_kv)
