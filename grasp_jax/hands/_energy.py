@@ -32,15 +32,16 @@ from ._sdf import ObjectGeometry, distance, distance_and_normal
 class Weights:
     """Weights of the energy terms (static; hashable)."""
 
-    closure: float = 5.0
+    closure: float = 12.0
     distance: float = 300.0
     penetration: float = 100.0
     self_collision: float = 10.0
-    #: Depth (m) of the hand's surface in the object left unpenalized.
-    allowance: float = 1e-4
-    #: Distance (m) the contacts are pulled to: a hair off the surface, so that the parts of the
-    #: fingertips between the spheres stay out of the object (the squeeze configuration closes it).
-    gap: float = 5e-4
+    #: Clearance (m) the hand's surface keeps from the object: samples closer than this are
+    #: penalized, which covers the signed-distance grid's rounding of edges and corners.
+    clearance: float = 1e-3
+    #: Distance (m) the contacts are pulled to: just beyond the clearance (the squeeze
+    #: configuration closes it).
+    gap: float = 1.2e-3
 
 
 def contacts(hand: Hand, geom: ObjectGeometry, frames):
@@ -59,11 +60,11 @@ def spheres(hand: Hand, frames):
     return transform_points(frames, hand.sphere_link, hand.sphere_center), hand.sphere_radius
 
 
-def penetration(hand: Hand, geom: ObjectGeometry, frames, allowance=0.0) -> tuple[jax.Array, jax.Array]:
-    """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object (less
-    ``allowance``) and of the object's surface points into the hand's collision spheres."""
+def penetration(hand: Hand, geom: ObjectGeometry, frames, clearance=0.0) -> tuple[jax.Array, jax.Array]:
+    """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object grown
+    by ``clearance`` and of the object's surface points into the hand's collision spheres."""
     surface = transform_points(frames, hand.surface_link, hand.surface_point)
-    into_object = jax.nn.relu(-allowance - jax.vmap(lambda x: distance(geom, x))(surface))
+    into_object = jax.nn.relu(clearance - jax.vmap(lambda x: distance(geom, x))(surface))
     centers, radii = spheres(hand, frames)
     gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
     into_hand = jax.nn.relu(radii[None] - gap)
@@ -85,7 +86,7 @@ def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *
     points, normals, dist, _ = contacts(hand, geom, frames)
     model = ContactModel(contact, num_edges, torsion)
     value, _ = objective_one(points, normals, mu, model, kind, geom.center, geom.scale, iterations, best_effort=True)
-    pen_sum, pen_max = penetration(hand, geom, frames, weights.allowance)
+    pen_sum, pen_max = penetration(hand, geom, frames, weights.clearance)
     collide = self_collision(hand, frames, pairs)
     scale = geom.scale
     total = (-weights.closure * value + weights.distance * jnp.sum(jnp.abs(dist - weights.gap)) / scale
