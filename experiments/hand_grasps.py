@@ -10,7 +10,8 @@ within 1 cm and 15 degrees of another's wrist pose), valid grasps per second (co
 included; a total per hand and objective over the run) and the programs compiled for each object (0 after the first object: the SDF grid is data). Writes
 ``results.md``, ``results.json`` and ``best_grasps.png``.
 
-    python experiments/hand_grasps.py --hands allegro --starts 256 --steps 80
+    python experiments/hand_grasps.py --hands allegro --starts 256 --steps 200
+    python experiments/hand_grasps.py --hands allegro --objectives dfc --dfc-steps 266 --out ...  # equal time
     python experiments/hand_grasps.py --hands leap --starts 64 --steps 200 --objects ycb_013_apple ...
 """
 
@@ -51,11 +52,12 @@ def hand_size_objects() -> list[str]:
 def run_one(hand, obj, args, objective):
     before = _batch.STATS["compiled"]
     t0 = time.perf_counter()
-    result = hands.synthesize(hand, obj, starts=args.starts, steps=args.steps, seed=args.seed, objective=objective)
+    steps = args.dfc_steps if objective == "dfc" and args.dfc_steps else args.steps
+    result = hands.synthesize(hand, obj, starts=args.starts, steps=steps, seed=args.seed, objective=objective)
     seconds = time.perf_counter() - t0
     s = result.summary()
     return result, {
-        "objective": objective, "valid_fraction": s["valid_fraction"],
+        "objective": objective, "steps": steps, "valid_fraction": s["valid_fraction"],
         "force_closure_fraction": s["force_closure_fraction"], "quality_median_valid": s["quality_median_valid"],
         "penetration_median_mm": s["penetration_median_mm"], "distinct_valid": s["distinct_valid"],
         "distance_median_mm": float(1e3 * np.median(np.abs(result.distance).max(axis=1))),
@@ -67,16 +69,17 @@ def run_one(hand, obj, args, objective):
 def draw(ax, hand, result, index, obj):
     """The object's mesh and the posed hand's collision geometry of grasp ``index``."""
     mesh = obj.mesh
-    faces = mesh.faces[:: max(1, len(mesh.faces) // 1500)]
-    ax.plot_trisurf(*mesh.vertices.T, triangles=faces, color="tab:orange", alpha=0.9, linewidth=0)
+    if len(mesh.faces) > 2000:
+        mesh = mesh.simplify_quadric_decimation(face_count=2000)
+    ax.plot_trisurf(*mesh.vertices.T, triangles=mesh.faces, color="tab:orange", alpha=1.0, linewidth=0)
     pose = np.concatenate([result.position[index], result.quaternion[index]])
     frames = np.asarray(forward(hand, pose, result.joints[index]))
     for c in hand.collisions:
         m = _geometry.element_mesh(c)
         m = m.simplify_quadric_decimation(face_count=200) if len(m.faces) > 400 else m
         v = (frames[c.link][:3, :3] @ m.vertices.T).T + frames[c.link][:3, 3]
-        ax.plot_trisurf(*v.T, triangles=m.faces, color="tab:blue", alpha=0.35, linewidth=0)
-    ax.scatter(*result.points[index].T, color="red", s=25)
+        ax.plot_trisurf(*v.T, triangles=m.faces, color="tab:blue", alpha=0.25, linewidth=0)
+    ax.scatter(*result.points[index].T, color="red", s=30, depthshade=False)
     lo, hi = mesh.bounds[0] - 0.06, mesh.bounds[1] + 0.06
     center, half = (lo + hi) / 2, (hi - lo).max() / 2
     for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), center):
@@ -90,7 +93,10 @@ def main():
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--hands", nargs="+", default=list(HANDS), choices=list(HANDS))
     ap.add_argument("--objects", nargs="+", default=None, help="mesh stems (default: every YCB object of hand size)")
-    ap.add_argument("--no-baseline", action="store_true", help="skip DexGraspNet's energy")
+    ap.add_argument("--objectives", nargs="+", default=["closure", "dfc"], choices=["closure", "dfc"],
+                    help="grasp_jax's closure objective and/or DexGraspNet's energy (the baseline)")
+    ap.add_argument("--dfc-steps", type=int, default=None,
+                    help="steps of DexGraspNet's energy (default --steps; more for a comparison at equal time)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     timer = Timer()
@@ -100,7 +106,7 @@ def main():
         hand = hands.load(HANDS[hand_name])
         for obj_name in args.objects:
             obj = objects.load(SHARED_MESHES / f"{obj_name}.obj")
-            for objective in ("closure",) + (() if args.no_baseline else ("dfc",)):
+            for objective in args.objectives:
                 result, rec = run_one(hand, obj, args, objective)
                 rec.update(hand=hand_name, object=obj_name)
                 records.append(rec)
@@ -126,14 +132,16 @@ def main():
                 seconds = sum(r["seconds"] for r in runs)
                 totals.append([hand_name, objective, len(runs), 100 * valid / (args.starts * len(runs)), valid / seconds,
                                seconds])
-    text = (f"# Hand grasps\n\n{args.starts} starts x {args.steps} steps per hand and object; soft contacts, "
+    dfc = f" (DexGraspNet's energy: {args.dfc_steps})" if args.dfc_steps else ""
+    text = (f"# Hand grasps\n\n{args.starts} starts x {args.steps} steps{dfc} per hand and object; soft contacts, "
             f"mu = 0.5; valid = force-closure, penetration <= 1 mm, contacts within 2 mm.\n\n"
             + table(header, rows) + "\n\n## Over the run (compilation included)\n\n"
             + table(["hand", "objective", "objects", "valid %", "valid grasps/s", "seconds"], totals) + "\n\n"
             + timer.report() + "\n")
     print(text)
     write(args.out, text)
-    write_json(args.out, {"starts": args.starts, "steps": args.steps, "runs": records})
+    write_json(args.out, {"starts": args.starts, "steps": args.steps, "dfc_steps": args.dfc_steps or args.steps,
+                          "runs": records})
     if best:
         cols = min(4, len(best))
         fig = plt.figure(figsize=(4 * cols, 4 * ((len(best) + cols - 1) // cols)))

@@ -23,6 +23,7 @@ import numpy as np
 
 from .._contact import ContactModel
 from .._objectives import objective_one
+from ._geometry import farthest
 from ._hand import Hand
 from ._kinematics import forward, transform_points
 from ._sdf import ObjectGeometry, distance, distance_and_normal
@@ -94,13 +95,23 @@ def energy(pose, joints, hand: Hand, geom: ObjectGeometry, pairs, mu, torsion, *
     return total, {"objective": value, "distance": jnp.max(jnp.abs(dist)), "penetration": pen_max}
 
 
+#: Spheres per link that take part in finger-finger collision (spread apart from the largest).
+PAIR_SPHERES = 12
+
+
 def finger_pairs(hand: Hand):
     """``(2, P) int32`` the sphere pairs of different fingers, on the two outer links of each
-    finger (its distal link, the links fixed to it, and its parent), where fingers touch."""
-    finger = np.asarray(hand.sphere_finger)
+    finger (its distal link, the links fixed to it, and its parent), where fingers touch; at most
+    :data:`PAIR_SPHERES` spheres per link."""
+    finger, link = np.asarray(hand.sphere_finger), np.asarray(hand.sphere_link)
     outer = set(hand.finger_link) | {hand.parent[b] for b in hand.finger_link}
     outer |= {i for i in range(hand.num_links) if hand.parent[i] in outer and hand.joint_kind[i] == 0}
-    near = np.isin(np.asarray(hand.sphere_link), sorted(outer))
+    near = np.zeros(len(finger), bool)
+    centers, radii = np.asarray(hand.sphere_center), np.asarray(hand.sphere_radius)
+    for i in sorted(outer):
+        own = np.flatnonzero(link == i)
+        if len(own):
+            near[own[farthest(centers[own], PAIR_SPHERES, int(np.argmax(radii[own])))]] = True
     a, b = np.triu_indices(len(finger), 1)
     keep = (finger[a] >= 0) & (finger[b] >= 0) & (finger[a] != finger[b]) & near[a] & near[b]
     return np.stack([a[keep], b[keep]]).astype(np.int32)

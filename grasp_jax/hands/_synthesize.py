@@ -45,7 +45,7 @@ SEGMENTS = 10
 #: Starts: joints jittered from the opened configuration towards closing by up to this share of
 #: their range; the hand's surface this far (m) from the object, moved back along its approach
 #: direction in at most CLEARING_ROUNDS rounds.
-OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.25, (0.005, 0.02), 8
+OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.1, (0.005, 0.02), 8
 #: Pre-grasp and squeeze: joints moved (rad, largest joint) away from / into the object.
 PREGRASP, SQUEEZE = 0.3, 0.1
 #: Hand surface samples per collision element for the exact penetration, and the deepest of
