@@ -9,11 +9,9 @@ average. What could make results unreliable is said in ``Mesh.warnings``.
 
 from __future__ import annotations
 
-import dataclasses
-
 import functools
 import warnings as _warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -76,7 +74,7 @@ class Mesh:
                               "file with faces.")
         notes = [f"trimesh: {w.message}" for w in caught if not issubclass(w.category, DeprecationWarning)]
         mesh = cls.from_trimesh(loaded, name=name or path.stem, where=str(path), notes=notes)
-        return dataclasses.replace(mesh, source=str(path.resolve()))
+        return replace(mesh, source=str(path.resolve()))
 
     @classmethod
     def from_trimesh(cls, mesh: trimesh.Trimesh, *, name: str = "mesh", where: str | None = None,
