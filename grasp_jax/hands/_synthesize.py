@@ -50,7 +50,7 @@ OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.1, (0.005, 0.02), 8
 PREGRASP, SQUEEZE = 0.3, 0.1
 #: Hand surface samples per collision element for the exact penetration, and the deepest of
 #: them (by the grid) checked against the mesh per grasp.
-PENETRATION_SAMPLES, DEEPEST = 200, 24
+PENETRATION_SAMPLES, DEEPEST = 1000, 64
 OBJECTIVES = ("closure", "dfc")
 #: Radius (m) of a fingertip's contact patch: soft contacts resist a moment about the normal of
 #: ``grasp_jax.patch_torsion(PATCH_RADIUS, mu)``.
