@@ -403,6 +403,44 @@ def test_penetration_against_trimesh(default_hand, glass):
             assert (exact > 0) == expect and (depth > 0) == expect
 
 
+def test_penetration_reads_the_nearest_patches_exactly(default_hand, glass, monkeypatch):
+    """Reading only the surface patches and spheres nearest the object gives the sum over all of
+    them wherever no more than that many can be within reach (here 6 patches and 12 spheres, of
+    the default hand's many)."""
+    from grasp_jax.hands import _energy, _geometry
+    from grasp_jax.hands._kinematics import transform_points
+
+    geom, clearance = hands.geometry(glass), 1e-3
+    monkeypatch.setattr(_energy, "NEAR_PATCHES", 6)
+    monkeypatch.setattr(_energy, "NEAR_SPHERES", 12)
+    hand = default_hand
+    dist = jax.vmap(lambda x: hands._sdf.distance(geom, x))
+
+    def both(pose):
+        frames = hands.forward(hand, pose, hand.open_joints)
+        surface = transform_points(frames, hand.surface_link, hand.surface_point)
+        centers, radii = _energy.spheres(hand, frames)
+        gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
+        full = jnp.sum(jax.nn.relu(clearance - dist(surface))) + jnp.sum(jax.nn.relu(radii[None] - gap))
+        local = jnp.asarray(hand.surface_point).reshape(-1, _geometry.PATCH, 3)
+        link = jnp.asarray(hand.surface_link).reshape(-1, _geometry.PATCH)[:, 0]
+        middle = local.mean(axis=1)
+        size = jnp.max(jnp.linalg.norm(local - middle[:, None], axis=-1), axis=1)
+        reach = dist(transform_points(frames, link, middle)) - _energy.LIPSCHITZ * size
+        sphere_reach = dist(centers) - _energy.LIPSCHITZ * radii
+        fits = (jnp.sum(reach < clearance) <= 6) & (jnp.sum(sphere_reach < 0) <= 12)
+        return _energy.penetration(hand, geom, frames, clearance)[0], full, fits
+
+    rng = np.random.default_rng(0)
+    top = glass.center + np.array([0, 0, 1.0]) * glass.radius
+    poses = np.concatenate([top + rng.normal(0, 0.01, (24, 3)), np.tile([1.0, 0, 0, 0], (24, 1))], axis=1)
+    with float64_scope():
+        culled, full, fits = (np.asarray(a) for a in jax.jit(jax.vmap(both))(poses))
+    assert fits.sum() >= 4 and (full[fits] > 0).sum() >= 2
+    np.testing.assert_allclose(culled[fits], full[fits], rtol=1e-12, atol=1e-15)
+    assert (culled <= full + 1e-15).all()
+
+
 @pytest.fixture(scope="module")
 def synthesized(default_hand, glass):
     # hard contacts and 4 cone edges: the smallest LPs, the least compilation

@@ -16,6 +16,7 @@ clips), not by an energy.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -23,7 +24,7 @@ import numpy as np
 
 from .._contact import ContactModel
 from .._objectives import objective_one
-from ._geometry import farthest
+from ._geometry import PATCH, farthest
 from ._hand import Hand
 from ._kinematics import forward, transform_points
 from ._sdf import ObjectGeometry, distance, distance_and_normal
@@ -61,12 +62,33 @@ def spheres(hand: Hand, frames):
     return transform_points(frames, hand.sphere_link, hand.sphere_center), hand.sphere_radius
 
 
+#: The hand's surface patches and collision spheres that the penetration term reads per step: those
+#: nearest the object. Farther ones are far enough out that they add nothing (the grid's distance
+#: changes by at most LIPSCHITZ times the distance moved).
+NEAR_PATCHES, NEAR_SPHERES, LIPSCHITZ = 48, 64, math.sqrt(3.0)
+
+
+def _nearest(geom: ObjectGeometry, centers, radii, count: int):
+    """Indices ``(min(count, n),)`` of the balls ``centers: (n, 3), radii: (n,)`` that may come
+    closest to the object."""
+    reach = jax.vmap(lambda x: distance(geom, x))(jax.lax.stop_gradient(centers)) - LIPSCHITZ * radii
+    return jax.lax.top_k(-reach, min(count, centers.shape[0]))[1]
+
+
 def penetration(hand: Hand, geom: ObjectGeometry, frames, clearance=0.0) -> tuple[jax.Array, jax.Array]:
     """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object grown
-    by ``clearance`` and of the object's surface points into the hand's collision spheres."""
-    surface = transform_points(frames, hand.surface_link, hand.surface_point)
+    by ``clearance`` and of the object's surface points into the hand's collision spheres; read on
+    the :data:`NEAR_PATCHES` patches and :data:`NEAR_SPHERES` spheres nearest the object."""
+    local = jnp.asarray(hand.surface_point).reshape(-1, PATCH, 3)
+    link = jnp.asarray(hand.surface_link).reshape(-1, PATCH)[:, 0]
+    middle = jnp.mean(local, axis=1)
+    size = jnp.max(jnp.sqrt(jnp.sum((local - middle[:, None]) ** 2, axis=-1)), axis=1)
+    near = _nearest(geom, transform_points(frames, link, middle), size + clearance, NEAR_PATCHES)
+    surface = transform_points(frames, link[near][:, None], local[near]).reshape(-1, 3)
     into_object = jax.nn.relu(clearance - jax.vmap(lambda x: distance(geom, x))(surface))
     centers, radii = spheres(hand, frames)
+    near = _nearest(geom, centers, radii, NEAR_SPHERES)
+    centers, radii = centers[near], jnp.asarray(radii)[near]
     gap = jnp.sqrt(jnp.sum((geom.points[:, None] - centers[None]) ** 2, axis=-1) + 1e-30)
     into_hand = jax.nn.relu(radii[None] - gap)
     return jnp.sum(into_object) + jnp.sum(into_hand), jnp.maximum(jnp.max(into_object), jnp.max(into_hand))

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import trimesh
@@ -31,7 +32,9 @@ SPHERES = (3, 12)
 #: face pressed on a convex object of radius R hides a depth of about SPACING^2 / (8 R) between
 #: samples (0.06 mm at R = 3 cm).
 SPACING = 0.004
-SURFACE = (8, 48)
+SURFACE = (16, 48)
+#: Surface samples per patch: an element's samples come in patches of neighbours, PATCH each.
+PATCH = 16
 #: A joint whose range about 0 has sides within this ratio of each other is a side joint.
 SIDE_SYMMETRY = 0.8
 #: Contact candidates per finger, and the cosine between a candidate's normal and the flexion
@@ -128,18 +131,29 @@ def link_spheres(collisions, num_links: int, seed: int = 0):
 
 def surface_samples(collisions, seed: int = 0):
     """``(points (N, 3), links (N,))``: points of each collision element's surface about
-    :data:`SPACING` apart (farthest-point sampling, from a corner of its hull), in the link frames."""
+    :data:`SPACING` apart (farthest-point sampling, from a corner of its hull), in the link frames,
+    in patches of :data:`PATCH` neighbours (``N`` is a multiple of ``PATCH``)."""
     points, links = [], []
     for c in collisions:
         m = element_mesh(c)
-        count = int(np.clip(round(m.area / SPACING**2), *SURFACE))
+        count = PATCH * round(np.clip(m.area / SPACING**2, *SURFACE) / PATCH)
         p, _ = _sample([m], 40 * count, seed)
         p = np.concatenate([np.asarray(m.convex_hull.vertices), p])
-        points.append(p[farthest(p, count)])
+        points.append(_patches(p[farthest(p, count)]))
         links.append(np.full(count, c.link))
     if not points:
         return np.zeros((0, 3)), np.zeros(0, np.int32)
     return np.concatenate(points), np.concatenate(links).astype(np.int32)
+
+
+def _patches(points: np.ndarray) -> np.ndarray:
+    """``points`` (a multiple of :data:`PATCH`) reordered into patches of neighbours: split along
+    the widest axis at a multiple of ``PATCH`` until each part is one patch."""
+    if len(points) <= PATCH:
+        return points
+    order = np.argsort(points[:, np.argmax(np.ptp(points, axis=0))], kind="stable")
+    half = PATCH * math.ceil(len(points) / (2 * PATCH))
+    return np.concatenate([_patches(points[order[:half]]), _patches(points[order[half:]])])
 
 
 def fingers(parent: tuple, kind: tuple, collisions) -> tuple[list[int], list[int]]:

@@ -52,6 +52,9 @@ PREGRASP, SQUEEZE = 0.3, 0.1
 #: them (by the grid) checked against the mesh per grasp.
 PENETRATION_SAMPLES, DEEPEST = 1000, 64
 OBJECTIVES = ("closure", "dfc")
+#: Vmapped block sizes of the step and final programs (``map_grasps(block=)``): the largest that
+#: a batch fills, so that 64 starts do not run a block of 256.
+BLOCKS = (256, 128, 64, 32, 16, 8)
 #: Radius (m) of a fingertip's contact patch: soft contacts resist a moment about the normal of
 #: ``grasp_jax.patch_torsion(PATCH_RADIUS, mu)``.
 PATCH_RADIUS = 0.005
@@ -217,7 +220,7 @@ def _run(hand, geom, init, mu, kind, num_edges, iterations, contact, weights, st
     energies = []
     for offset in range(0, steps, length):
         shared = (hand, geom, pairs, jnp.asarray(mu, dtype), torsion, jnp.asarray(offset, jnp.int32))
-        leaves, e = map_grasps(fn, tuple(leaves), shared, (count,))
+        leaves, e = map_grasps(fn, tuple(leaves), shared, (count,), block=BLOCKS)
         leaves = list(leaves)
         energies.append(np.asarray(e))
         if bar is not None:
@@ -242,7 +245,7 @@ def _final_one(pose, joints, shared):
     chosen = jnp.take_along_axis(cand, k[:, None, None], axis=1)[:, 0]
     world = transform_points(frames, sample_link, samples)
     depth = jax.vmap(lambda x: distance(geom, x))(world)
-    deepest = world[jnp.argsort(depth)[:DEEPEST]]
+    deepest = world[jax.lax.top_k(-depth, DEEPEST)[1]]
 
     def reach(q):
         return jnp.sum(contacts(hand, geom, forward(hand, pose, q))[2])
@@ -275,7 +278,7 @@ def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iteratio
     count, fingers = pose.shape[0], hand.num_fingers
     samples, links = _surface_samples(hand.collisions)
     shared = (hand, geom, jnp.asarray(samples, pose.dtype), jnp.asarray(links))
-    chosen, _, deepest, pregrasp, squeeze = map_grasps(_final_one, (pose, joints), shared, (count,))
+    chosen, _, deepest, pregrasp, squeeze = map_grasps(_final_one, (pose, joints), shared, (count,), block=BLOCKS)
     chosen = np.asarray(chosen, dtype=np.float64).reshape(-1, 3)
     mesh = obj.mesh
     closest, gap, tri = trimesh.proximity.closest_point(mesh, chosen)
