@@ -129,13 +129,20 @@ class Draws(NamedTuple):
 
 def draws(key, samples: int, n: int, d: int, dtype=np.float64) -> Draws:
     """The :class:`Draws` of ``key`` (a ``jax.random.key``) as NumPy arrays of ``dtype``."""
+    dtype = np.dtype(dtype)
+    with jax.enable_x64(dtype == np.float64):
+        return Draws(*(np.asarray(a) for a in _draw(key, samples, n, d, dtype)))
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2, 3, 4))
+def _draw(key, samples: int, n: int, d: int, dtype: np.dtype) -> tuple:
+    """The six arrays of :func:`draws`, in one compiled program per shape (op by op, each of the six
+    draws compiled a program of its own for every new shape); the same numbers as drawn one by one."""
     keys = jax.random.split(key, 6)
     shapes = ((samples, n, d - 1), (samples, n, d - 1), (samples, n), (samples, n),
               (samples, 3 if d == 3 else 1), (samples, d))
-    with jax.enable_x64(np.dtype(dtype) == np.float64):
-        out = [jax.random.uniform(k, s, dtype) if i == 2 else jax.random.normal(k, s, dtype)
-               for i, (k, s) in enumerate(zip(keys, shapes))]
-        return Draws(*(np.asarray(a) for a in out))
+    return tuple(jax.random.uniform(k, s, dtype) if i == 2 else jax.random.normal(k, s, dtype)
+                 for i, (k, s) in enumerate(zip(keys, shapes)))
 
 
 # ---------------------------------------------------------------------------------------------
