@@ -233,6 +233,8 @@ class _Program:
         return max(1, len(self.devices))
 
 
+#: The compiled chunk programs of this process, by key (:func:`_program`), in order of last use:
+#: the least recently used first (a caller that must free some drops them from the front).
 _PROGRAMS: dict = {}
 _LOCK = threading.Lock()
 #: Keys whose programs call LAPACK: kept to one device.
@@ -252,10 +254,10 @@ def _program(fn: Callable, grasp_specs: tuple, shared, local: int, block: int, d
     """The compiled program scoring ``local`` grasps per device with ``fn`` (cached)."""
     key = (fn, grasp_specs, _aval_key(shared), local, block, devices, _x64())
     with _LOCK:
-        prog = _PROGRAMS.get(key)
+        prog = _PROGRAMS.pop(key, None)
         if prog is None:
             prog = _build(fn, grasp_specs, shared, local, block, devices, key)
-            _PROGRAMS[key] = prog
+        _PROGRAMS[key] = prog  # (re)inserted: the dict is in order of last use, the oldest first
     return prog
 
 

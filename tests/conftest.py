@@ -131,25 +131,39 @@ def _max_memory_maps() -> int:
         return 65530
 
 
-#: XLA's CPU executables hold a few memory maps each (their JIT code) for as long as they live, and
-#: a test worker keeps every program it compiled: one reached Linux's ``vm.max_map_count`` (65,530)
-#: 93% through the suite, and the next compile died inside XLA (segmentation faults and aborts in
-#: ``backend_compile_and_load``, three runs in a row; ``tests/test_friction.py`` alone grows to
-#: 13,000 maps). Past half the limit, a finished test module's programs are dropped (a later module
-#: compiles again what it needs).
+#: XLA's CPU executables hold memory maps (their JIT code) for as long as they live (a chunk
+#: program of the library about 1,100 to 1,300), and a test worker keeps every program it compiled:
+#: one reached Linux's ``vm.max_map_count`` (65,530) 93% through the suite, and the next compile
+#: died inside XLA (segmentation faults and aborts in ``backend_compile_and_load``, three runs in a
+#: row; ``tests/test_friction.py`` alone grows to 13,000 maps). Past half the limit, when a test
+#: module ends, JAX's caches are cleared (the programs the tests jit themselves) and the library's
+#: chunk programs are dropped, the least recently used first, until the maps are down to
+#: :data:`KEEP_MEMORY_MAPS`: the programs many modules use (4-finger ``evaluate``, ...) stay, and a
+#: later module compiles again only what it needs of the others.
 MAX_MEMORY_MAPS = _max_memory_maps() // 2
+#: ... and the maps left after the release: three quarters of that.
+KEEP_MEMORY_MAPS = MAX_MEMORY_MAPS * 3 // 4
+#: Memory maps of a chunk program, about (to drop several at a time between garbage collections).
+MAPS_PER_PROGRAM = 1000
 
 
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
     yield
-    if _memory_maps() > MAX_MEMORY_MAPS:
-        from grasp_jax import _batch
+    if _memory_maps() <= MAX_MEMORY_MAPS:
+        return
+    from grasp_jax import _batch
 
-        with _batch._LOCK:
-            _batch._PROGRAMS.clear()
-        jax.clear_caches()
+    jax.clear_caches()
+    gc.collect()
+    while (maps := _memory_maps()) > KEEP_MEMORY_MAPS:
+        with _batch._LOCK:  # the least recently used first (the dict's order)
+            oldest = list(_batch._PROGRAMS)[: 1 + (maps - KEEP_MEMORY_MAPS) // MAPS_PER_PROGRAM]
+            for key in oldest:
+                del _batch._PROGRAMS[key]
         gc.collect()
+        if not oldest:
+            break
 
 
 @pytest.fixture(scope="session")
