@@ -354,8 +354,9 @@ def test_streamed_batch_equals_lock_step():
     assert np.any(short.status == Status.NOT_CONVERGED)
     _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4, best_effort=True)[0], (A, b, c))
     _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=jnp.int32(5))[0], (A, b, c))
-    # warm from a nearby problem's solution, weight 0 for every third problem
-    first = jit(jax.vmap(lambda A, b, c: solve(LP(A, b, c))[0]))(A, b, c)
+    # warm from a nearby problem's solution, weight 0 for every third problem (the full solve's,
+    # streamed: the program above, not compiled again)
+    first = jax.tree_util.tree_map(jnp.asarray, full_streamed)
     point = jax.vmap(lambda A, b, c, s: warm_point(LP(A, b, c), s))(A, b, c, first)
     near = A + 1e-3 * jnp.asarray(rng.normal(size=A.shape))
     weight = jnp.where(jnp.arange(n) % 3 == 0, 0.0, 0.99)
