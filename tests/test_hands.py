@@ -370,7 +370,7 @@ def test_sdf_against_trimesh(glass):
     import trimesh
 
     geom = hands.geometry(glass)
-    assert geom.grid.shape == (48, 48, 48) and geom.points.shape == (64, 3)
+    assert geom.grid.shape == (64, 64, 64) and geom.points.shape == (64, 3)
     rng = np.random.default_rng(0)
     x = glass.center + rng.uniform(-1.2, 1.2, (400, 3)) * glass.radius
     with float64_scope():

@@ -24,7 +24,7 @@ from ..storage import write_atomically
 
 #: Grid points per axis, surface points kept, and the grid's margin around the object (m, at
 #: least, or this share of its radius).
-RESOLUTION = 48
+RESOLUTION = 64
 SURFACE_POINTS = 64
 MARGIN, MARGIN_SHARE = 0.02, 0.3
 #: Surface samples of the nearest-sample distance; grid points closer than this many cells to the
