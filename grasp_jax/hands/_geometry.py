@@ -146,6 +146,21 @@ def surface_samples(collisions, seed: int = 0):
     return np.concatenate(points), np.concatenate(links).astype(np.int32)
 
 
+@functools.lru_cache(maxsize=8)
+def dense_samples(collisions: tuple, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (N, 3), links (N,))``: ``count`` random samples of every collision element and
+    32 vertices of its convex hull, in its link's frame (the final penetration check)."""
+    points, links = [], []
+    for c in collisions:
+        m = element_mesh(c)
+        p, _ = trimesh.sample.sample_surface(m, count, seed=0)
+        corners = np.asarray(m.convex_hull.vertices)
+        p = np.concatenate([np.asarray(p), corners[farthest(corners, 32)]])
+        points.append(p)
+        links.append(np.full(len(p), c.link))
+    return np.concatenate(points), np.concatenate(links).astype(np.int32)
+
+
 def _patches(points: np.ndarray) -> np.ndarray:
     """``points`` (a multiple of :data:`PATCH`) reordered into patches of neighbours: split along
     the widest axis at a multiple of ``PATCH`` until each part is one patch."""

@@ -257,26 +257,11 @@ def _final_one(pose, joints, shared):
     return chosen, dist, deepest, pregrasp, squeeze
 
 
-@functools.lru_cache(maxsize=8)
-def _surface_samples(collisions: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``(points (N, 3), links (N,))``: random samples of every collision element and its convex
-    hull's vertices, in its link's frame."""
-    pts, links = [], []
-    for c in collisions:
-        m = geo.element_mesh(c)
-        p, _ = trimesh.sample.sample_surface(m, PENETRATION_SAMPLES, seed=0)
-        corners = np.asarray(m.convex_hull.vertices)
-        p = np.concatenate([np.asarray(p), corners[geo.farthest(corners, 32)]])
-        pts.append(p)
-        links.append(np.full(len(p), c.link))
-    return np.concatenate(pts), np.concatenate(links).astype(np.int32)
-
-
 def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iterations) -> dict:
     """The fields of :class:`HandGraspResult` that describe the grasps ``pose, joints``, scored on
     the mesh."""
     count, fingers = pose.shape[0], hand.num_fingers
-    samples, links = _surface_samples(hand.collisions)
+    samples, links = geo.dense_samples(hand.collisions, PENETRATION_SAMPLES)
     shared = (hand, geom, jnp.asarray(samples, pose.dtype), jnp.asarray(links))
     chosen, _, deepest, pregrasp, squeeze = map_grasps(_final_one, (pose, joints), shared, (count,), block=BLOCKS)
     chosen = np.asarray(chosen, dtype=np.float64).reshape(-1, 3)
