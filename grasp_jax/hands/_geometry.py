@@ -32,7 +32,7 @@ SPHERES = (3, 12)
 #: face pressed on a convex object of radius R hides a depth of about SPACING^2 / (8 R) between
 #: samples (0.06 mm at R = 3 cm).
 SPACING = 0.004
-SURFACE = (16, 48)
+SURFACE = (16, 512)
 #: Surface samples per patch: an element's samples come in patches of neighbours, PATCH each.
 PATCH = 16
 #: A joint whose range about 0 has sides within this ratio of each other is a side joint.
