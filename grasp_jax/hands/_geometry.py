@@ -84,11 +84,12 @@ def farthest(points: np.ndarray, count: int, first: int = 0) -> np.ndarray:
     """Indices of ``count`` points spread by farthest-point sampling, from ``first``."""
     count = min(count, len(points))
     chosen = [first]
-    dist = np.linalg.norm(points - points[first], axis=1)
+    square = np.einsum("ij,ij->i", points - points[first], points - points[first])  # squared distances
     for _ in range(count - 1):
-        k = int(np.argmax(dist))
+        k = int(np.argmax(square))
         chosen.append(k)
-        dist = np.minimum(dist, np.linalg.norm(points - points[k], axis=1))
+        step = points - points[k]
+        np.minimum(square, np.einsum("ij,ij->i", step, step), out=square)
     return np.asarray(chosen)
 
 
