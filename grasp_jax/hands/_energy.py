@@ -75,16 +75,23 @@ def _nearest(geom: ObjectGeometry, centers, radii, count: int):
     return jax.lax.top_k(-reach, min(count, centers.shape[0]))[1]
 
 
+def nearest_points(geom: ObjectGeometry, frames, local, link, count: int, grow=0.0):
+    """``(min(count, G) * P, 3)`` world points of the ``count`` groups ``local: (G, P, 3)`` (on the
+    links ``link: (G,)``) whose bounding balls, grown by ``grow``, come nearest the object."""
+    local = jnp.asarray(local)
+    middle = jnp.mean(local, axis=1)
+    size = jnp.max(jnp.sqrt(jnp.sum((local - middle[:, None]) ** 2, axis=-1)), axis=1)
+    near = _nearest(geom, transform_points(frames, link, middle), size + grow, count)
+    return transform_points(frames, jnp.asarray(link)[near][:, None], local[near]).reshape(-1, 3)
+
+
 def penetration(hand: Hand, geom: ObjectGeometry, frames, clearance=0.0) -> tuple[jax.Array, jax.Array]:
     """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object grown
     by ``clearance`` and of the object's surface points into the hand's collision spheres; read on
     the :data:`NEAR_PATCHES` patches and :data:`NEAR_SPHERES` spheres nearest the object."""
     local = jnp.asarray(hand.surface_point).reshape(-1, PATCH, 3)
     link = jnp.asarray(hand.surface_link).reshape(-1, PATCH)[:, 0]
-    middle = jnp.mean(local, axis=1)
-    size = jnp.max(jnp.sqrt(jnp.sum((local - middle[:, None]) ** 2, axis=-1)), axis=1)
-    near = _nearest(geom, transform_points(frames, link, middle), size + clearance, NEAR_PATCHES)
-    surface = transform_points(frames, link[near][:, None], local[near]).reshape(-1, 3)
+    surface = nearest_points(geom, frames, local, link, NEAR_PATCHES, clearance)
     into_object = jax.nn.relu(clearance - jax.vmap(lambda x: distance(geom, x))(surface))
     centers, radii = spheres(hand, frames)
     near = _nearest(geom, centers, radii, NEAR_SPHERES)

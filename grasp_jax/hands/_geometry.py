@@ -149,14 +149,16 @@ def surface_samples(collisions, seed: int = 0):
 
 @functools.lru_cache(maxsize=8)
 def dense_samples(collisions: tuple, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(points (N, 3), links (N,))``: ``count`` random samples of every collision element and
-    32 vertices of its convex hull, in its link's frame (the final penetration check)."""
+    """``(points (G, PATCH, 3), links (G,))``: about ``count`` random samples of every collision
+    element and 32 vertices of its convex hull, in its link's frame, in patches of neighbours (the
+    final penetration check)."""
     points, links = [], []
     for c in collisions:
         m = element_mesh(c)
-        p, _ = trimesh.sample.sample_surface(m, count, seed=0)
         corners = np.asarray(m.convex_hull.vertices)
-        p = np.concatenate([np.asarray(p), corners[farthest(corners, 32)]])
+        corners = corners[np.resize(farthest(corners, 32), 32)]
+        p, _ = trimesh.sample.sample_surface(m, PATCH * math.ceil((count + 32) / PATCH) - 32, seed=0)
+        p = _patches(np.concatenate([np.asarray(p), corners])).reshape(-1, PATCH, 3)
         points.append(p)
         links.append(np.full(len(p), c.link))
     return np.concatenate(points), np.concatenate(links).astype(np.int32)

@@ -30,7 +30,7 @@ from .._contact import patch_torsion
 from .._precision import float64_scope
 from .._validate import check_int, check_num_edges, check_scalar
 from . import _geometry as geo
-from ._energy import Weights, contacts, energy, finger_pairs
+from ._energy import NEAR_PATCHES, Weights, contacts, energy, finger_pairs, nearest_points
 from ._hand import Hand
 from ._kinematics import forward, matrix_to_quat, transform_points
 from ._result import MAX_DISTANCE, MAX_PENETRATION, HandGraspResult, HandStatus
@@ -48,9 +48,10 @@ SEGMENTS = 10
 OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.1, (0.005, 0.02), 8
 #: Pre-grasp and squeeze: joints moved (rad, largest joint) away from / into the object.
 PREGRASP, SQUEEZE = 0.3, 0.1
-#: Hand surface samples per collision element for the exact penetration, and the deepest of
-#: them (by the grid) checked against the mesh per grasp.
-PENETRATION_SAMPLES, DEEPEST = 1000, 64
+#: Hand surface samples per collision element for the exact penetration, the patches of them
+#: nearest the object read by the grid per grasp, and the deepest samples there checked against
+#: the mesh.
+PENETRATION_SAMPLES, NEAR_DENSE, DEEPEST = 2000, 256, 128
 OBJECTIVES = ("closure", "dfc")
 #: Vmapped block sizes of the step and final programs (``map_grasps(block=)``): the largest that
 #: a batch fills, so that 64 starts do not run a block of 256.
@@ -162,7 +163,9 @@ def initial_configurations(hand: Hand, geom, starts: int, seed: int) -> tuple[np
 def _clearance_one(pose, joints, shared):
     """The smallest signed distance ``()`` of the hand's surface samples to the object."""
     hand, geom = shared
-    world = transform_points(forward(hand, pose, joints), hand.surface_link, hand.surface_point)
+    local = jnp.asarray(hand.surface_point).reshape(-1, geo.PATCH, 3)
+    link = jnp.asarray(hand.surface_link).reshape(-1, geo.PATCH)[:, 0]
+    world = nearest_points(geom, forward(hand, pose, joints), local, link, NEAR_PATCHES)
     return jnp.min(jax.vmap(lambda x: distance(geom, x))(world))
 
 
@@ -243,7 +246,7 @@ def _final_one(pose, joints, shared):
     _, _, dist, k = contacts(hand, geom, frames)
     cand = transform_points(frames, jnp.asarray(hand.finger_link)[:, None], hand.candidate_point)
     chosen = jnp.take_along_axis(cand, k[:, None, None], axis=1)[:, 0]
-    world = transform_points(frames, sample_link, samples)
+    world = nearest_points(geom, frames, samples, sample_link, NEAR_DENSE)
     depth = jax.vmap(lambda x: distance(geom, x))(world)
     deepest = world[jax.lax.top_k(-depth, DEEPEST)[1]]
 
