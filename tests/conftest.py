@@ -34,6 +34,7 @@ import gc
 import os
 import signal
 from pathlib import Path
+from types import SimpleNamespace
 
 #: The suite's compilation cache (see the docstring), before JAX is imported.
 os.environ.setdefault("GRASP_JAX_CACHE", "off")  # opt in: GRASP_JAX_CACHE=.test-cache/xla
@@ -204,6 +205,21 @@ def in_process(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     yield cli.main
     signal.signal(signal.SIGTERM, before)
+
+
+@pytest.fixture
+def usage(in_process, capsys):
+    """``grasp-jax ARGS`` in this process, for the usage errors (exit 2 before any grasp is made),
+    with the ``returncode``, ``stdout`` and ``stderr`` of ``test_cli.grasp_jax``: a process
+    start each is what they cost. ``main``'s exit 2 in a real process: ``test_cli.py``'s
+    ``test_user_mistakes_in_a_process``; ``dataset`` in one: ``test_killed_and_resumed_from_the_command_line``."""
+
+    def run(*args):
+        code = in_process([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+    return run
 
 
 # ---------------------------------------------------------------------------------------------

@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pyarrow.dataset as pads
@@ -46,21 +45,6 @@ def whole(meshes, tmp_path_factory):
     summary = dataset.build(meshes, out, **SETTINGS)
     assert summary.done == ["a_box", "b_ball", "c_can"] and not summary.failed
     return out, _rows(out)
-
-
-@pytest.fixture
-def usage(in_process, capsys):
-    """``grasp-jax ARGS`` in this process, for the usage errors (exit 2 before any grasp is made),
-    with the ``returncode``, ``stdout`` and ``stderr`` of :func:`test_cli.grasp_jax`: a process
-    start each is what they cost. ``main``'s exit 2 in a real process: ``test_cli.py``'s
-    ``test_user_mistakes_in_a_process``; ``dataset`` in one: ``test_killed_and_resumed_from_the_command_line``."""
-
-    def run(*args):
-        code = in_process([str(a) for a in args])
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
-
-    return run
 
 
 def _rows(out):
@@ -238,49 +222,3 @@ def test_parallel_jaw_dataset(meshes, tmp_path):
         dataset.build(meshes, out, num=200, seed=3, mu=0.5, contact="soft", torsion=0.002,
                       robust=settings["robust"])
     assert dataset.build(meshes, out, **settings).skipped == ["a_box", "b_ball", "c_can"]
-
-
-def test_hand_dataset(tmp_path, usage):
-    """Hand grasps over a folder of objects: one part per object (``hands.synthesize``'s result, one
-    row per start), records with the valid count, the hand in the manifest, resumed only with the
-    same hand; ``--hand`` with a gripper or robust labels is one clear error."""
-    import dataclasses
-
-    import trimesh
-
-    from grasp_jax import hands
-
-    folder = tmp_path / "objects"
-    folder.mkdir()
-    trimesh.creation.box((0.06, 0.05, 0.07)).export(folder / "a_box.stl")
-    trimesh.creation.icosphere(2, 0.035).export(folder / "b_ball.obj")
-    hand = hands.load("default")
-    out = tmp_path / "ds"
-    settings = dict(hand=hand, starts=8, steps=10)
-    summary = dataset.build(folder, out, **settings)
-    assert summary.done == ["a_box", "b_ball"] and not summary.failed
-    for name in summary.done:
-        result = hands.load_result(dataset.part_path(out, name))
-        record = summary.rows[name]
-        assert len(result) == 8 and result.steps == 10 and result.contact == "soft" and result.mu == 0.5
-        assert record["num"] == 8 and record["valid"] == int(result.valid.sum()) and record["seconds"] > 0
-        assert record["valid_rate"] == result.valid.mean() and record["part"] == f"object={name}/part.parquet"
-    manifest = json.loads((out / "_manifest.json").read_text())
-    assert manifest["config"]["hand"] == {"name": "default", "urdf": None}
-    assert manifest["config"]["starts"] == 8 and manifest["config"]["steps"] == 10
-    assert manifest["objects_done"] == 2 and manifest["grasps"] == 16
-    assert "valid %" in summary.format() and dataset.read(out).num_rows == 16
-    again = dataset.build(folder, out, **settings)
-    assert again.skipped == ["a_box", "b_ball"] and not again.done
-    with pytest.raises(dataset.DatasetError, match="another configuration .*differs in hand"):
-        dataset.build(folder, out, **{**settings, "hand": dataclasses.replace(hand, name="other")})
-    with pytest.raises(dataset.DatasetError, match="hand grasps and robust labels do not go together"):
-        dataset.build(folder, out, robust=ROBUST, **settings)
-    for flags, message in ((["--gripper", "parallel-jaw", "--max-width", "0.1"], "--hand and --gripper describe two"),
-                           (["--robust", "4", "--sigma-pos", "0.02"], "--robust sets robust labels"),
-                           (["--starts", "8"], None)):
-        hand_flags = [] if message is None else ["--hand", "default"]
-        cli = usage("dataset", folder, "--out", "cli", *hand_flags, *flags)
-        message = message or "--starts sets the hand grasps: add --hand"
-        assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and message in cli.stderr, cli.stderr
-    assert not (tmp_path / "cli").exists()

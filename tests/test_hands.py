@@ -529,3 +529,53 @@ def test_bad_arguments(default_hand, glass):
 
     with pytest.raises(ValueError, match="3D mesh"):
         hands.synthesize(default_hand, objects.load("star"))
+
+
+def test_hand_dataset(tmp_path, usage):
+    """``grasp-jax dataset --hand`` (``grasp_jax.dataset``; here beside the hand's other programs):
+    hand grasps over a folder of objects: one part per object (``hands.synthesize``'s result, one
+    row per start), records with the valid count, the hand in the manifest, resumed only with the
+    same hand; ``--hand`` with a gripper or robust labels is one clear error."""
+    import dataclasses
+    import json
+
+    import trimesh
+
+    from grasp_jax import dataset, pipeline
+    from grasp_jax._robust import Noise
+
+    ROBUST = pipeline.RobustLabels(Noise(position=0.02, friction=(0.8, 1.2)), samples=4, margin=False)  # test_dataset's
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    trimesh.creation.box((0.06, 0.05, 0.07)).export(folder / "a_box.stl")
+    trimesh.creation.icosphere(2, 0.035).export(folder / "b_ball.obj")
+    hand = hands.load("default")
+    out = tmp_path / "ds"
+    settings = dict(hand=hand, starts=8, steps=10)
+    summary = dataset.build(folder, out, **settings)
+    assert summary.done == ["a_box", "b_ball"] and not summary.failed
+    for name in summary.done:
+        result = hands.load_result(dataset.part_path(out, name))
+        record = summary.rows[name]
+        assert len(result) == 8 and result.steps == 10 and result.contact == "soft" and result.mu == 0.5
+        assert record["num"] == 8 and record["valid"] == int(result.valid.sum()) and record["seconds"] > 0
+        assert record["valid_rate"] == result.valid.mean() and record["part"] == f"object={name}/part.parquet"
+    manifest = json.loads((out / "_manifest.json").read_text())
+    assert manifest["config"]["hand"] == {"name": "default", "urdf": None}
+    assert manifest["config"]["starts"] == 8 and manifest["config"]["steps"] == 10
+    assert manifest["objects_done"] == 2 and manifest["grasps"] == 16
+    assert "valid %" in summary.format() and dataset.read(out).num_rows == 16
+    again = dataset.build(folder, out, **settings)
+    assert again.skipped == ["a_box", "b_ball"] and not again.done
+    with pytest.raises(dataset.DatasetError, match="another configuration .*differs in hand"):
+        dataset.build(folder, out, **{**settings, "hand": dataclasses.replace(hand, name="other")})
+    with pytest.raises(dataset.DatasetError, match="hand grasps and robust labels do not go together"):
+        dataset.build(folder, out, robust=ROBUST, **settings)
+    for flags, message in ((["--gripper", "parallel-jaw", "--max-width", "0.1"], "--hand and --gripper describe two"),
+                           (["--robust", "4", "--sigma-pos", "0.02"], "--robust sets robust labels"),
+                           (["--starts", "8"], None)):
+        hand_flags = [] if message is None else ["--hand", "default"]
+        cli = usage("dataset", folder, "--out", "cli", *hand_flags, *flags)
+        message = message or "--starts sets the hand grasps: add --hand"
+        assert cli.returncode == 2 and cli.stderr.count("\n") == 1 and message in cli.stderr, cli.stderr
+    assert not (tmp_path / "cli").exists()
