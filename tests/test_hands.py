@@ -441,6 +441,35 @@ def test_penetration_reads_the_nearest_patches_exactly(default_hand, glass, monk
     assert (culled <= full + 1e-15).all()
 
 
+def test_final_check_reads_the_deepest_sample(default_hand, glass):
+    """The final check's patches nearest the object hold the deepest of all the hand's dense
+    samples (by the grid) wherever no more than NEAR_DENSE patches can reach that deep."""
+    from grasp_jax.hands import _energy, _geometry, _synthesize
+    from grasp_jax.hands._kinematics import transform_points
+
+    geom, hand = hands.geometry(glass), default_hand
+    samples, links = _geometry.dense_samples(hand.collisions, _synthesize.PENETRATION_SAMPLES)
+    dist = jax.vmap(lambda x: hands._sdf.distance(geom, x))
+
+    def both(pose):
+        frames = hands.forward(hand, pose, hand.open_joints)
+        culled = jnp.min(dist(_energy.nearest_points(geom, frames, samples, links, _synthesize.NEAR_DENSE)))
+        full = jnp.min(dist(transform_points(frames, jnp.repeat(links, samples.shape[1]), samples.reshape(-1, 3))))
+        middle = samples.mean(axis=1)
+        size = jnp.max(jnp.linalg.norm(samples - middle[:, None], axis=-1), axis=1)
+        reach = dist(transform_points(frames, links, middle)) - _energy.LIPSCHITZ * size
+        return culled, full, jnp.sum(reach <= full) <= _synthesize.NEAR_DENSE
+
+    rng = np.random.default_rng(1)
+    top = glass.center + np.array([0, 0, 0.95]) * glass.radius
+    poses = np.concatenate([top + rng.normal(0, 0.005, (16, 3)), np.tile([1.0, 0, 0, 0], (16, 1))], axis=1)
+    with float64_scope():
+        culled, full, fits = (np.asarray(a) for a in jax.jit(jax.vmap(both))(poses))
+    assert fits.sum() >= 4 and (full[fits] < 0).sum() >= 2
+    np.testing.assert_array_equal(culled[fits], full[fits])
+    assert (culled >= full).all()
+
+
 @pytest.fixture(scope="module")
 def synthesized(default_hand, glass):
     # hard contacts and 4 cone edges: the smallest LPs, the least compilation
