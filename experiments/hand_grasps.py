@@ -90,7 +90,7 @@ def draw(ax, hand, result, index, obj):
 def main():
     ap = parser("hand_grasps", __doc__)
     ap.add_argument("--starts", type=int, default=256)
-    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--hands", nargs="+", default=list(HANDS), choices=list(HANDS))
     ap.add_argument("--objects", nargs="+", default=None, help="mesh stems (default: every YCB object of hand size)")
     ap.add_argument("--objectives", nargs="+", default=["closure", "dfc"], choices=["closure", "dfc"],

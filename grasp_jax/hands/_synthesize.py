@@ -5,7 +5,8 @@ every start at once (``_batch.map_grasps``, segment after segment): the energy o
 its gradient with respect to the wrist position, quaternion and joints, one Adam update (per-group
 rates, cosine decay), the quaternion normalized and the joints clipped to their limits. The best
 iterate (lowest energy) of each start is scored on the mesh: contacts at the closest mesh points
-of the chosen candidates, ``gj.evaluate`` (soft contacts by default), exact penetration.
+of the chosen candidates, ``gj.evaluate`` (soft contacts by default), the penetration of the
+hand's deepest dense samples measured on the mesh.
 """
 
 from __future__ import annotations
