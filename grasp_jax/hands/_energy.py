@@ -105,13 +105,17 @@ def nearest_points(geom: ObjectGeometry, frames, local, link, count: int, grow=0
     return transform_points(frames, jnp.asarray(link)[near][:, None], local[near]).reshape(-1, 3)
 
 
+def surface_patches(hand: Hand):
+    """``(local (G, PATCH, 3), link (G,))``: the hand's surface samples in their patches."""
+    return (jnp.asarray(hand.surface_point).reshape(-1, PATCH, 3),
+            jnp.asarray(hand.surface_link).reshape(-1, PATCH)[:, 0])
+
+
 def penetration(hand: Hand, geom: ObjectGeometry, frames, clearance=0.0) -> tuple[jax.Array, jax.Array]:
     """``(sum of depths, largest depth)`` (m) of the hand's surface samples into the object grown
     by ``clearance`` and of the object's surface points into the hand's collision spheres; read on
     the :data:`NEAR_PATCHES` patches and :data:`NEAR_SPHERES` spheres nearest the object."""
-    local = jnp.asarray(hand.surface_point).reshape(-1, PATCH, 3)
-    link = jnp.asarray(hand.surface_link).reshape(-1, PATCH)[:, 0]
-    surface = nearest_points(geom, frames, local, link, NEAR_PATCHES, clearance)
+    surface = nearest_points(geom, frames, *surface_patches(hand), NEAR_PATCHES, clearance)
     into_object = jax.nn.relu(clearance - jax.vmap(lambda x: distance(geom, x))(surface))
     centers, radii = spheres(hand, frames)
     near = _nearest(geom, centers, radii, NEAR_SPHERES)

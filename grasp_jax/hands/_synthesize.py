@@ -31,7 +31,7 @@ from .._contact import patch_torsion
 from .._precision import float64_scope
 from .._validate import check_int, check_num_edges, check_scalar
 from . import _geometry as geo
-from ._energy import NEAR_PATCHES, Weights, contacts, energy, finger_pairs, nearest_points
+from ._energy import NEAR_PATCHES, Weights, contacts, energy, finger_pairs, nearest_points, surface_patches
 from ._hand import Hand
 from ._kinematics import forward, matrix_to_quat, transform_points
 from ._result import MAX_DISTANCE, MAX_PENETRATION, HandGraspResult, HandStatus
@@ -49,7 +49,7 @@ SEGMENTS = 10
 OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.1, (0.005, 0.02), 8
 #: Pre-grasp and squeeze: joints moved (rad, largest joint) away from / into the object.
 PREGRASP, SQUEEZE = 0.3, 0.1
-#: Hand surface samples per collision element for the exact penetration, the patches of them
+#: Hand surface samples per collision element for the final penetration check, the patches of them
 #: nearest the object read by the grid per grasp, and the deepest samples there checked against
 #: the mesh.
 PENETRATION_SAMPLES, NEAR_DENSE, DEEPEST = 2000, 256, 128
@@ -164,9 +164,7 @@ def initial_configurations(hand: Hand, geom, starts: int, seed: int) -> tuple[np
 def _clearance_one(pose, joints, shared):
     """The smallest signed distance ``()`` of the hand's surface samples to the object."""
     hand, geom = shared
-    local = jnp.asarray(hand.surface_point).reshape(-1, geo.PATCH, 3)
-    link = jnp.asarray(hand.surface_link).reshape(-1, geo.PATCH)[:, 0]
-    world = nearest_points(geom, forward(hand, pose, joints), local, link, NEAR_PATCHES)
+    world = nearest_points(geom, forward(hand, pose, joints), *surface_patches(hand), NEAR_PATCHES)
     return jnp.min(jax.vmap(lambda x: distance(geom, x))(world))
 
 
