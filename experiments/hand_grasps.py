@@ -4,7 +4,8 @@ For each hand (Allegro, LEAP, the built-in default hand) and each YCB object of 
 ``../shared/data/meshes``: ``grasp_jax.hands.synthesize`` from the same starts with
 ``objective="closure"`` (grasp_jax's force-closure objective, the same LPs as ``gj.optimize``)
 and ``objective="dfc"`` (DexGraspNet's energy), scored by ``gj.evaluate`` (soft contacts,
-mu = 0.5) on the mesh. Valid = force-closure, penetration <= 1 mm, every contact within 2 mm.
+mu = 0.5) on the mesh. Valid = the fingers within 2 mm of the surface (at least two) force-closure,
+penetration <= 1 mm.
 Reports valid rate, Q, penetration, distinct valid grasps (``HandGraspResult.distinct``: none
 within 1 cm and 15 degrees of another's wrist pose), valid grasps per second (compilation
 included; a total per hand and objective over the run) and the programs compiled for each object (0 after the first object: the SDF grid is data). Writes
@@ -134,7 +135,7 @@ def main():
                                seconds])
     dfc = f" (DexGraspNet's energy: {args.dfc_steps})" if args.dfc_steps else ""
     text = (f"# Hand grasps\n\n{args.starts} starts x {args.steps} steps{dfc} per hand and object; soft contacts, "
-            f"mu = 0.5; valid = force-closure, penetration <= 1 mm, contacts within 2 mm.\n\n"
+            f"mu = 0.5; valid = the fingers within 2 mm force-closure, penetration <= 1 mm.\n\n"
             + table(header, rows) + "\n\n## Over the run (compilation included)\n\n"
             + table(["hand", "objective", "objects", "valid %", "valid grasps/s", "seconds"], totals) + "\n\n"
             + timer.report() + "\n")

@@ -2,7 +2,7 @@
 
 For each hand (Allegro, LEAP by default) and each YCB object: ``--starts`` starts x ``--steps``
 steps of ``hands.synthesize`` (grasp_jax's closure objective, soft contacts, mu = 0.5), then every
-valid grasp (force-closure, penetration <= 1 mm, contacts within 2 mm) is simulated by
+valid grasp (the fingers within 2 mm of the surface force-closure, penetration <= 1 mm) is simulated by
 ``sim.simulate_hand`` (default ``Protocol``: the hand's joints under position control, gain
 ``hand_kp``, pre-grasp -> grasp -> squeeze, then the six forces). Reported: valid grasps, the held
 rate among them (BODex's benchmark: above 75%), the statuses, the held rate per direction, and the

@@ -76,8 +76,9 @@ def _report(args, result) -> None:
     say(args, "status: " + ", ".join(f"{name} {count:,}" for name, count in summary["status"].items()))
     for rank, i in enumerate(result.best(args.top)):
         say(args, f"  #{rank + 1} start {i}: Q {result.quality[i]:.4f}, penetration "
-                  f"{1e3 * result.penetration[i]:.2f} mm, largest contact distance "
-                  f"{1e3 * abs(result.distance[i]).max():.2f} mm")
+                  f"{1e3 * result.penetration[i]:.2f} mm, {int(result.active[i].sum())} of "
+                  f"{result.active.shape[1]} fingers touch (largest distance "
+                  f"{1e3 * abs(result.distance[i][result.active[i]]).max():.2f} mm)")
     for path in (args.out, args.html):
         if path is not None:
             say(args, f"wrote {path}")

@@ -22,10 +22,10 @@ MAX_DISTANCE = 2e-3
 class HandStatus(StatusEnum):
     """Why a grasp is or is not valid (``int8`` per start; the first failed check)."""
 
-    VALID = 0, "valid: force-closure, penetration <= 1 mm, every contact within 2 mm of the surface"
-    NOT_FORCE_CLOSURE = 1, "the contacts are not force-closure (gj.evaluate)"
+    VALID = 0, "valid: the fingers within 2 mm of the surface are force-closure, penetration <= 1 mm"
+    NOT_FORCE_CLOSURE = 1, "the fingers within 2 mm of the surface are not force-closure (gj.evaluate)"
     PENETRATION = 2, "the hand penetrates the object by more than 1 mm"
-    CONTACT_FAR = 3, "a contact is more than 2 mm from the surface"
+    CONTACT_FAR = 3, "fewer than two fingers are within 2 mm of the surface"
     NON_FINITE = 4, "the optimization produced non-finite values"
 
 
@@ -42,10 +42,12 @@ class HandGraspResult:
         points, normals: ``(S, F, 3)`` contacts on the mesh (closest points to the fingers' chosen
             candidates) and the mesh's outward normals there.
         distance: ``(S, F)`` each chosen candidate's distance to the mesh (m, negative inside).
+        active: ``(S, F)`` the fingers that touch: ``|distance| <=`` :data:`MAX_DISTANCE`.
         penetration: ``(S,)`` the deepest point of the hand's collision surface inside the mesh (m).
-        force_closure, quality: ``(S,)`` from ``gj.evaluate`` (``contact``, ``mu``) on the contacts.
-        valid: ``(S,)`` force-closure, penetration <= :data:`MAX_PENETRATION` and every contact
-            within :data:`MAX_DISTANCE`; ``status: (S,) int8`` :class:`HandStatus`.
+        force_closure, quality: ``(S,)`` from ``gj.evaluate`` (``contact``, ``mu``) on the active
+            contacts (a finger that does not touch is no contact).
+        valid: ``(S,)`` at least two active contacts, force-closure, and penetration <=
+            :data:`MAX_PENETRATION`; ``status: (S,) int8`` :class:`HandStatus`.
         energy: ``(S, steps)`` the energy of each step's iterate (the grasp is the iterate of the
             lowest).
         initial_position, initial_quaternion, initial_joints: the starts.
@@ -61,6 +63,7 @@ class HandGraspResult:
     points: np.ndarray
     normals: np.ndarray
     distance: np.ndarray
+    active: np.ndarray
     penetration: np.ndarray
     force_closure: np.ndarray
     quality: np.ndarray
@@ -188,6 +191,8 @@ def load(path) -> HandGraspResult:
                 shape.append(col.type.list_size)
                 col = col.flatten()
             cols[name] = np.asarray(col.to_numpy(zero_copy_only=False)).reshape((table.num_rows, *shape))
+    if "active" not in cols:  # written before results had the field
+        cols["active"] = np.abs(cols["distance"]) <= meta.get("max_distance", MAX_DISTANCE)
     return HandGraspResult(**cols, joint_names=tuple(meta["joint_names"]), hand=meta["hand"],
                            object_name=meta["object"], objective_name=meta["objective"], contact=meta["contact"],
                            mu=meta["mu"], steps=meta["steps"], seconds=meta["seconds"],

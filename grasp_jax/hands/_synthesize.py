@@ -273,18 +273,24 @@ def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iteratio
     side = np.einsum("ij,ij->i", chosen - closest, normals)
     dist = np.where(side < 0, -gap, gap).reshape(count, fingers)
     points, normals = closest.reshape(count, fingers, 3), normals.reshape(count, fingers, 3)
-    ev = evaluate(points, normals, mu=mu, num_edges=num_edges, contact=contact,
+    active = np.abs(dist) <= MAX_DISTANCE
+    # a finger that does not touch is no contact: it is evaluated as a copy of a touching one, which
+    # adds no wrench (force-closure and Q unchanged) and keeps one program for every pattern
+    first = np.argmax(active, axis=1)
+    source = np.where(active, np.arange(fingers)[None], first[:, None])
+    rows = np.arange(count)[:, None]
+    ev = evaluate(points[rows, source], normals[rows, source], mu=mu, num_edges=num_edges, contact=contact,
                   torsion=None if contact == "hard" else _torsion(contact, mu))
     inside = trimesh.proximity.signed_distance(mesh, np.asarray(deepest, dtype=np.float64).reshape(-1, 3))
     penetration = np.maximum(inside.reshape(count, -1).max(axis=1), 0.0)
-    fc, q = np.asarray(ev.force_closure), np.asarray(ev.quality)
+    far = active.sum(axis=1) < 2
+    fc, q = np.asarray(ev.force_closure) & ~far, np.where(far, 0.0, np.asarray(ev.quality))
     pose, joints = np.asarray(pose, dtype=np.float64), np.asarray(joints, dtype=np.float64)
     finite = np.isfinite(pose).all(axis=1) & np.isfinite(joints).all(axis=1) & np.isfinite(dist).all(axis=1)
-    far = np.abs(dist).max(axis=1) > MAX_DISTANCE
-    status = np.select([~finite, ~fc, penetration > MAX_PENETRATION, far],
-                       [HandStatus.NON_FINITE, HandStatus.NOT_FORCE_CLOSURE, HandStatus.PENETRATION,
-                        HandStatus.CONTACT_FAR], HandStatus.VALID).astype(np.int8)
+    status = np.select([~finite, far, ~fc, penetration > MAX_PENETRATION],
+                       [HandStatus.NON_FINITE, HandStatus.CONTACT_FAR, HandStatus.NOT_FORCE_CLOSURE,
+                        HandStatus.PENETRATION], HandStatus.VALID).astype(np.int8)
     return {"position": pose[:, :3], "quaternion": pose[:, 3:] / np.linalg.norm(pose[:, 3:], axis=1, keepdims=True),
             "joints": joints, "pregrasp": np.asarray(pregrasp, np.float64), "squeeze": np.asarray(squeeze, np.float64),
-            "points": points, "normals": normals, "distance": dist, "penetration": penetration, "force_closure": fc,
-            "quality": q, "valid": status == HandStatus.VALID, "status": status}
+            "points": points, "normals": normals, "distance": dist, "active": active, "penetration": penetration,
+            "force_closure": fc, "quality": q, "valid": status == HandStatus.VALID, "status": status}

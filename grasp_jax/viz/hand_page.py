@@ -54,7 +54,8 @@ def hand_figure(result, hand, obj, *, top: int = 6, max_faces: int = MAX_FACES) 
                  f"{'valid' if result.valid[i] else 'not valid'}")
         traces.append(go.Mesh3d(x=hv[:, 0], y=hv[:, 1], z=hv[:, 2], i=hf[:, 0], j=hf[:, 1], k=hf[:, 2],
                                 color=_HAND, opacity=0.5, flatshading=True, name=label, hoverinfo="name"))
-        p, n = np.asarray(result.points[i]), np.asarray(result.normals[i])
+        touch = np.asarray(result.active[i], bool)  # the fingers that touch
+        p, n = np.asarray(result.points[i])[touch], np.asarray(result.normals[i])[touch]
         scale = 0.15 * float(np.ptp(v, axis=0).max())
         tips = p + scale * n
         lines = np.full((3 * len(p), 3), np.nan)
