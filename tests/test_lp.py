@@ -319,9 +319,7 @@ def _lock_step(fn, block=64):
     return run
 
 
-def _stream_case(fn, args, lanes_active=None):
-    streamed = jax.tree_util.tree_map(np.asarray, jit(jax.vmap(fn))(*args))
-    locked = jax.tree_util.tree_map(np.asarray, jit(_lock_step(fn))(*args))
+def _compare(streamed, locked, lanes_active=None):
     keep = slice(None) if lanes_active is None else lanes_active
     np.testing.assert_array_equal(streamed.status[keep], locked.status[keep])
     # A residual at the tolerance can meet it an iteration earlier in one vector width than in
@@ -332,7 +330,26 @@ def _stream_case(fn, args, lanes_active=None):
     assert gap.max() <= 1 and np.mean(gap > 0) <= 0.01
     for a, b in ((streamed.x, locked.x), (streamed.y, locked.y), (streamed.value, locked.value)):
         np.testing.assert_allclose(a[keep], b[keep], rtol=1e-7, atol=1e-7)
-    return streamed, locked
+
+
+def _streamed_and_locked(cases):
+    """``(streamed, locked)``: for each case ``(build, args)``, ``build(batch)(*args)`` with ``batch``
+    ``jax.vmap`` (streamed) and :func:`_lock_step`, all cases in one program each way: two
+    compilations instead of two per case, which cost more than the programs' size (four solves:
+    30 s in eight programs, 10 s in two)."""
+    builds = [build for build, _ in cases]
+
+    def run(batch):
+        out = jit(lambda args: [build(batch)(*a) for build, a in zip(builds, args)])([a for _, a in cases])
+        return jax.tree_util.tree_map(np.asarray, out)
+
+    return run(jax.vmap), run(_lock_step)
+
+
+def _solved(**kwargs):
+    """``build`` of a case (:func:`_streamed_and_locked`): ``batch`` of a solve with ``kwargs``."""
+    return lambda batch: batch(lambda A, b, c, *rest: solve(LP(A, b, c), **{
+        k: (v(*rest) if callable(v) else v) for k, v in kwargs.items()})[0])
 
 
 def test_streamed_batch_equals_lock_step():
@@ -347,40 +364,49 @@ def test_streamed_batch_equals_lock_step():
     kinds = [_feasible(rng) if k % 3 else _infeasible(rng) for k in range(n - 8)]
     kinds += [_rank_deficient(rng, "inconsistent") for _ in range(8)]
     A, b, c = (jnp.asarray(np.stack(x)) for x in zip(*kinds))
-    full_streamed, full_locked = _stream_case(lambda A, b, c: solve(LP(A, b, c))[0], (A, b, c))
+    near = A + 1e-3 * jnp.asarray(rng.normal(size=A.shape))  # (for the warm starts below)
+    skip = jnp.asarray(rng.uniform(size=n) < 0.5)
+    # (the full solve in programs of its own: the warm starts below start from its solution, the
+    # same to the last bit as before the cases shared programs)
+    (full_streamed,), (full_locked,) = _streamed_and_locked([(_solved(), (A, b, c))])
+    _compare(full_streamed, full_locked)
+    streamed, locked = _streamed_and_locked([
+        (_solved(iterations=4), (A, b, c)),
+        (_solved(iterations=4, best_effort=True), (A, b, c)),
+        (_solved(iterations=jnp.int32(5)), (A, b, c)),
+        (_solved(skip=lambda k: k), (A, b, c, skip)),
+    ])
+    (short, _, _, skipped) = streamed
+    for k, (s, l) in enumerate(zip(streamed, locked)):
+        _compare(s, l, ~np.asarray(skip) if k == 3 else None)
     statuses = full_streamed.status
     assert {Status.OPTIMAL, Status.INFEASIBLE} <= set(statuses.tolist())
-    short, _ = _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4)[0], (A, b, c))
     assert np.any(short.status == Status.NOT_CONVERGED)
-    _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=4, best_effort=True)[0], (A, b, c))
-    _stream_case(lambda A, b, c: solve(LP(A, b, c), iterations=jnp.int32(5))[0], (A, b, c))
+    assert np.all(skipped.iterations[np.asarray(skip)] == 0)
     # warm from a nearby problem's solution, weight 0 for every third problem (the full solve's,
-    # streamed: the program above, not compiled again)
+    # streamed)
     first = jax.tree_util.tree_map(jnp.asarray, full_streamed)
     point = jax.vmap(lambda A, b, c, s: warm_point(LP(A, b, c), s))(A, b, c, first)
-    near = A + 1e-3 * jnp.asarray(rng.normal(size=A.shape))
     weight = jnp.where(jnp.arange(n) % 3 == 0, 0.0, 0.99)
-    _stream_case(lambda A, b, c, x, y, s, w: solve(LP(A, b, c), warm=((x, y, s),), weight=w)[0],
-                 (near, b, c, *point, weight))
-    skip = jnp.asarray(rng.uniform(size=n) < 0.5)
-    skipped, _ = _stream_case(lambda A, b, c, k: solve(LP(A, b, c), skip=k)[0], (A, b, c, skip),
-                              lanes_active=~np.asarray(skip))
-    assert np.all(skipped.iterations[np.asarray(skip)] == 0)
-    # float32 (restarts from other starting points after a spent budget): the same statuses but
-    # for round-off at the tolerance
+    warm = _solved(warm=lambda x, y, s, w: ((x, y, s),), weight=lambda x, y, s, w: w)
+    (warm_streamed,), (warm_locked,) = _streamed_and_locked([(warm, (near, b, c, *point, weight))])
+    _compare(warm_streamed, warm_locked)
+    # float32 (restarts from other starting points after a spent budget); the envelope gradient of
+    # the optimal values in c, streamed and in lock step
     f32 = tuple(a.astype(jnp.float32) for a in (A, b, c))
-    fn = lambda A, b, c: solve(LP(A, b, c))[0]  # noqa: E731
-    streamed = jit(jax.vmap(fn))(*f32)
-    locked = jit(_lock_step(fn))(*f32)
-    assert np.mean(np.asarray(streamed.status) == np.asarray(locked.status)) >= 0.99
-    # the envelope gradient of the optimal values in c, streamed and in lock step
-    total = lambda fn: jit(jax.grad(lambda c: jnp.sum(fn(A, b, c))))(c)  # noqa: E731
     value = lambda A, b, c: optimal_value(LP(A, b, c), solve(jax.lax.stop_gradient(LP(A, b, c)))[0])  # noqa: E731
+
+    def gradient(batch):
+        return lambda A, b, c: jax.grad(lambda c: jnp.sum(batch(value)(A, b, c)))(c)
+
+    (streamed32, grad_streamed), (locked32, grad_locked) = _streamed_and_locked(
+        [(_solved(), f32), (gradient, (A, b, c))])
+    # float32: the same statuses but for round-off at the tolerance
+    assert np.mean(streamed32.status == locked32.status) >= 0.99
     # (the gradient is the solution x: where a problem ended an iteration apart, which
-    # ``_stream_case`` allows on 1% of them, the two are two iterates within the solver's
+    # ``_compare`` allows on 1% of them, the two are two iterates within the solver's
     # tolerance of 1e-9; seen under XLA_FLAGS=--xla_cpu_max_isa=AVX2, one problem of 512, 2.5e-10
     # apart, 1.8e-11 elsewhere)
-    grad_streamed, grad_locked = total(jax.vmap(value)), total(_lock_step(value))
     same = full_streamed.iterations == full_locked.iterations
     np.testing.assert_allclose(grad_streamed[same], grad_locked[same], rtol=1e-9, atol=1e-10)
     np.testing.assert_allclose(grad_streamed[~same], grad_locked[~same], rtol=1e-9, atol=1e-9)
