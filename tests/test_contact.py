@@ -137,9 +137,12 @@ def test_sphere_antipodal_grasp_holds_with_soft_fingers():
 
 
 def test_zero_torsion_is_the_hard_contact():
+    """(Three fingers: the soft program is the one test_patch_torsion_and_more_torsion_never_hurts
+    runs.)"""
     rng = np.random.default_rng(3)
-    P, Nrm = grasps(sample_cylinder, 40, 4, rng)
+    P, Nrm = grasps(sample_cylinder, 60, 3, rng)
     hard = gj.evaluate(P, Nrm, mu=MU, num_edges=M)
+    assert 0 < np.count_nonzero(np.asarray(hard.force_closure)) < len(P)  # both verdicts
     for contact in ("soft", "dexnet-soft"):
         soft = gj.evaluate(P, Nrm, mu=MU, num_edges=M, contact=contact, torsion=0.0)
         np.testing.assert_array_equal(soft.force_closure, hard.force_closure)
