@@ -125,7 +125,8 @@ def test_warm_start_from_a_nearby_problem(problems, step):
     point = jax.vmap(lambda A, b, c, x, y: warm_point(LP(A, b, c), first._replace(x=x, y=y)))(
         *(jnp.asarray(np.stack(x)) for x in zip(*feasible)), first.x, first.y)
     cold = _solve(near)
-    same = jax.tree_util.tree_map(np.asarray, _warm_batch(A, b, c, *point, jnp.zeros(BATCH)))
+    # (every weight a weak-typed float64 array like 0.999's: one program)
+    same = jax.tree_util.tree_map(np.asarray, _warm_batch(A, b, c, *point, jnp.full(BATCH, 0.0)))
     np.testing.assert_array_equal(same.x, cold.x)
     warm = jax.tree_util.tree_map(np.asarray, _warm_batch(A, b, c, *point, jnp.full(BATCH, 0.999)))
     assert np.all(warm.status == Status.OPTIMAL)
@@ -261,7 +262,8 @@ def test_best_effort_reports_the_best_iterate(problems):
             assert np.sum(sol.status[:k] == Status.APPROXIMATE) > k // 2
     assert errors[0] > errors[1] > errors[2] and errors[2] < 1e-7, errors
     assert np.all(sol.status[k:] == Status.INFEASIBLE)
-    plain = _solve(feasible + infeasible)
+    # (the plain solve in the program of the other tests' batches)
+    plain = jax.tree_util.tree_map(lambda *a: np.concatenate(a), _solve(feasible), _solve(infeasible))
     np.testing.assert_array_equal(sol.status, plain.status)
     np.testing.assert_allclose(sol.value, plain.value, rtol=0, atol=1e-12)
 
