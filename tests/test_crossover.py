@@ -106,8 +106,8 @@ def test_crossover_from_the_dual_alone():
     rng = np.random.default_rng(3)
     A, b, c = _feasible(rng)
     ref = linprog(c, A_eq=A, b_eq=b, bounds=(0, None), method="highs")
-    (sol,) = jax.jit(lambda A, b, c: solve(LP(A, b, c), iterations=4))(A, b, c)
-    x, y, cert = jax.jit(crossover, static_argnums=5)(A, b, c, jnp.zeros(COLS), sol.y, 40)
+    (sol,) = jit(lambda A, b, c: solve(LP(A, b, c), iterations=4))(A, b, c)
+    x, y, cert = jit(lambda A, b, c, x, y: crossover(A, b, c, x, y, 40))(A, b, c, jnp.zeros(COLS), sol.y)
     assert bool(cert)
     assert float(c @ x) == pytest.approx(ref.fun, abs=1e-9 * (1 + abs(ref.fun)))
     np.testing.assert_allclose(np.asarray(y), ref.eqlin.marginals, atol=1e-8)
@@ -123,19 +123,22 @@ def test_vmap_equals_a_loop(random_lps):
             np.testing.assert_allclose(np.asarray(x[0]), np.asarray(xs[k]), atol=1e-6)
 
 
+_inverse_jitted = jit(_inverse)  # one program per size, kept across the examples
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(1, 7))
 def test_inverse_matches_numpy(seed, r):
     """The unrolled Gauss-Jordan inverse with partial pivoting, also with a zero leading entry."""
     B = np.random.default_rng(seed).normal(size=(r, r))
     B[0, 0] = 0.0
-    inv, smallest = jax.jit(_inverse)(B)
+    inv, smallest = _inverse_jitted(B)
     if np.linalg.cond(B) < 1e8:
         np.testing.assert_allclose(np.asarray(inv) @ B, np.eye(r), atol=1e-8 * np.linalg.cond(B))
         assert float(smallest) > 0
 
 
-@jax.jit
+@jit
 def _polished(A, b, c):
     (sol,) = solve(LP(A, b, c))
     return sol, polish(LP(A, b, c), sol, PIVOTS)
