@@ -257,7 +257,7 @@ def test_quality_under_jit_and_vmap():
     P, Nrm = _select(2, "fc", B, seed=102)
     q_jit = np.asarray(_grads(2)(P, Nrm)[0])
     direct = np.asarray(gj.quality(P, Nrm, mu=MU))
-    vmapped = jax.jit(jax.vmap(lambda p, nr: gj.quality(p, nr, mu=MU)))(jnp.asarray(P), jnp.asarray(Nrm))
+    vmapped = jit(jax.vmap(lambda p, nr: gj.quality(p, nr, mu=MU)))(jnp.asarray(P), jnp.asarray(Nrm))
     assert vmapped.shape == direct.shape == q_jit.shape == (B,)
     np.testing.assert_allclose(q_jit, direct, atol=1e-13)
     np.testing.assert_allclose(np.asarray(vmapped), direct, atol=1e-13)
@@ -266,7 +266,7 @@ def test_quality_under_jit_and_vmap():
 def test_gradient_wrt_mu():
     """mu may be traced as well: dQ/dmu from the envelope theorem matches HiGHS differences."""
     P, Nrm = _select(2, "fc", B, seed=102)
-    g = np.asarray(jax.jit(jax.grad(lambda mu: gj.quality(P, Nrm, mu=mu).sum()))(MU))
+    g = np.asarray(jit(jax.grad(lambda mu: gj.quality(P, Nrm, mu=mu).sum()))(MU))
     h = 1e-6
     fd = sum((reference.quality_highs(p, nr, MU + h)[0] - reference.quality_highs(p, nr, MU - h)[0]) / (2 * h)
              for p, nr in zip(P, Nrm))

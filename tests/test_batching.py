@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _grasps import MU, grasps, sample_box, sample_cylinder, sample_sphere
+from _jit import jit
 
 import grasp_jax as gj
 import grasp_jax._api as api
@@ -283,7 +284,7 @@ def test_staged_evaluate_equals_one_stage():
     skipped = np.asarray(ev.iterations) == 0
     assert 0.2 < skipped.mean() < 0.9
     # The traced path runs both stages on every grasp.
-    one = jax.jit(jax.vmap(lambda a, b: gj._closure.evaluate_one(a, b, MU, ContactModel(num_edges=8))))(p, n)
+    one = jit(jax.vmap(lambda a, b: gj._closure.evaluate_one(a, b, MU, ContactModel(num_edges=8))))(p, n)
     for name in ("force_closure", "equilibrium", "torque_span", "quality_status", "torque_status"):
         np.testing.assert_array_equal(np.asarray(getattr(ev, name)), np.asarray(getattr(one, name)), err_msg=name)
     for name in ("quality", "delta", "torque_margin", "certificate"):

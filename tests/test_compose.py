@@ -46,7 +46,7 @@ def test_evaluate_under_jit_vmap_with_a_leading_batch_shape():
     the concrete call."""
     p, n = _grasps(3, (2, 3))
     concrete = gj.evaluate(p, n, mu=MU)
-    traced = jax.jit(jax.vmap(lambda p, n: gj.evaluate(p, n, mu=MU)))(p, n)
+    traced = jit(jax.vmap(lambda p, n: gj.evaluate(p, n, mu=MU)))(p, n)
     assert isinstance(traced, gj.GraspEvaluation) and traced.quality.shape == (2, 3)
     assert traced.certificate.shape == (2, 3, 6)
     for name in FIELDS:

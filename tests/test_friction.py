@@ -111,7 +111,7 @@ def test_second_pass_resumes_the_first_pass_bracket():
     from grasp_jax._contact import ContactModel
 
     points, normals = _batch("cylinder", 4, 24, seed=11)
-    run = jax.jit(jax.vmap(lambda p, q, steps, its, start: _friction.critical_friction_one(
+    run = jit(jax.vmap(lambda p, q, steps, its, start: _friction.critical_friction_one(
         p, q, 4.0, ContactModel(num_edges=8), steps=steps, iterations=its, start=start), in_axes=(0, 0, None, None, 0)))
     fresh = jnp.zeros((len(points), _friction.RESUME))
     _, first, state = run(points, normals, 2, 10, fresh)
@@ -129,7 +129,7 @@ def test_batch_equals_a_loop_and_jit():
         mu_i, status_i = gj.critical_friction(points[i], normals[i])
         assert int(status_i) == status[i]
         np.testing.assert_allclose(float(mu_i), mu[i], rtol=1e-7)  # the LPs' rounding depends on the batch
-    traced = jax.jit(lambda p, q: gj.critical_friction(p, q))(points, normals)
+    traced = jit(lambda p, q: gj.critical_friction(p, q))(points, normals)
     np.testing.assert_allclose(np.asarray(traced[0]), mu, rtol=1e-7)
     np.testing.assert_array_equal(np.asarray(traced[1]), status)
 
