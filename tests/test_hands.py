@@ -4,6 +4,7 @@ synthesis."""
 from __future__ import annotations
 
 import io
+import json
 import os
 import re
 import sys
@@ -522,6 +523,14 @@ def test_save_and_load(synthesized, tmp_path, suffix):
         synthesized.save(tmp_path / "grasps.txt")
 
 
+def test_load_a_file_without_active(synthesized, tmp_path):
+    """A result written before ``active`` existed reads back with it from the distances."""
+    cols = {k: v for k, v in synthesized.columns().items() if k != "active"}
+    path = tmp_path / "old.npz"
+    np.savez(path, metadata=np.asarray(json.dumps(synthesized.metadata())), **cols)
+    np.testing.assert_array_equal(hands.load_result(path).active, np.abs(synthesized.distance) <= 2e-3)
+
+
 def test_distinct_drops_copies(synthesized):
     """A grasp within 1 cm and 15 degrees of a better kept one is a copy; a plain loop agrees."""
     import dataclasses
@@ -587,7 +596,7 @@ def test_hand_dataset(tmp_path, usage):
     trimesh.creation.icosphere(2, 0.035).export(folder / "b_ball.obj")
     hand = hands.load("default")
     out = tmp_path / "ds"
-    settings = dict(hand=hand, starts=8, steps=10)
+    settings = {"hand": hand, "starts": 8, "steps": 10}
     summary = dataset.build(folder, out, **settings)
     assert summary.done == ["a_box", "b_ball"] and not summary.failed
     for name in summary.done:
