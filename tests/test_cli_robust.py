@@ -1,19 +1,46 @@
 """``grasp-jax sample / score --robust N``: robust columns beside the nominal ones, through the
 streaming pipeline, equal to :func:`grasp_jax.robust` of the same grasps (run as subprocesses,
-one device, as ``test_cli.py`` runs the command line)."""
+one device, as ``test_cli.py`` runs the command line; ``grasp_jax.robust`` in a process of its own
+too, which loads the programs the command line compiled)."""
 
 from __future__ import annotations
 
-import jax
+import subprocess
+import sys
+
 import numpy as np
 
-import grasp_jax as gj
-from grasp_jax import objects, storage
+from grasp_jax import storage
 
 from test_cli import env, grasp_jax  # noqa: F401 - the fixture and the runner
 
 NOISE = ["--sigma-pos", "0.02", "--mu-range", "0.8,1.2", "--sigma-pose", "0.02,0.01"]
 ROBUST = ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "robust_unconverged")
+
+
+#: ``gj.robust`` of a results file's grasps with the noise and seed of NOISE and ``--seed 3``, run by
+#: :func:`_python_labels` in a process of its own.
+PYTHON_LABELS = """
+import sys
+from grasp_jax import devices
+devices.configure_cpu_devices(1)  # as --devices 1 does: the same device set, the same cached programs
+import jax, numpy as np, grasp_jax as gj
+from grasp_jax import objects, storage
+a, _ = storage.read_results(sys.argv[1])
+res = gj.robust(objects.Sphere(), a["points"], a["normals"], mu=0.364, key=jax.random.key(3), samples=8,
+                noise=gj.Noise(position=0.02, friction=(0.8, 1.2), rotation=0.02, translation=0.01), margin=False)
+np.savez(sys.argv[2], p_fc=np.asarray(res.p_fc), q_mean=np.asarray(res.q_mean))
+"""
+
+
+def _python_labels(env, cwd, name):
+    out = subprocess.run([sys.executable, "-c", PYTHON_LABELS, name, "python.npz"], env=env, cwd=cwd,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    with np.load(cwd / "python.npz") as f:
+        labels = dict(f)
+    (cwd / "python.npz").unlink()
+    return labels
 
 
 def test_sample_and_score_write_robust_columns(env, tmp_path, in_process, capsys):  # noqa: F811
@@ -24,12 +51,11 @@ def test_sample_and_score_write_robust_columns(env, tmp_path, in_process, capsys
     assert set(ROBUST) <= set(a) and "margin_mean" not in a
     assert meta["robust"]["samples"] == 8 and meta["robust"]["noise"]["position"] == 0.02
     assert meta["robust"]["noise"]["friction"] == [0.8, 1.2] and meta["robust"]["seed"] == 3
-    # the same labels from Python (one key for every chunk: they do not depend on the chunk size)
-    res = gj.robust(objects.Sphere(), a["points"], a["normals"], mu=0.364, key=jax.random.key(3), samples=8,
-                    noise=gj.Noise(position=0.02, friction=(0.8, 1.2), rotation=0.02, translation=0.01),
-                    margin=False)
-    np.testing.assert_array_equal(a["p_fc"], res.p_fc)
-    np.testing.assert_allclose(a["q_mean"], res.q_mean, rtol=1e-9, atol=1e-12)  # another program: LP tolerance
+    # the same labels from Python (one key for every chunk: they do not depend on the chunk size),
+    # in a process of its own with the command line's cache: it loads the programs sample compiled
+    res = _python_labels(env, tmp_path, "s.npz")
+    np.testing.assert_array_equal(a["p_fc"], res["p_fc"])
+    np.testing.assert_allclose(a["q_mean"], res["q_mean"], rtol=1e-9, atol=1e-12)  # another program: LP tolerance
     assert 0 < a["p_fc"].mean() < 1 and np.all(a["p_fc"][~a["force_closure"]] <= 1)
     # score the file again with the same noise and seed: the same labels, beside the nominal columns
     grasp_jax("score", "s.npz", "--robust", "8", *NOISE, "--robust-seed", "3", "--no-margin", "--devices", "1",
