@@ -381,6 +381,16 @@ def test_sdf_against_trimesh(glass):
     assert np.abs(ours - exact)[near].max() < 0.5 * float(geom.cell)
     assert (np.sign(ours) == np.sign(exact))[np.abs(exact) > float(geom.cell)].all()
     assert hands.geometry(glass) is geom  # cached
+    # normals: the direction from the mesh's closest point, outside within 3 mm of the surface
+    on, face = trimesh.sample.sample_surface(glass.mesh, 400, seed=0)
+    x = on + glass.mesh.face_normals[face] * rng.uniform(5e-4, 3e-3, (400, 1))
+    closest, gap, _ = trimesh.proximity.closest_point(glass.mesh, x)
+    outside = ~glass.mesh.contains(x)
+    with float64_scope():
+        normal = np.asarray(jax.jit(jax.vmap(lambda p: hands._sdf.distance_and_normal(geom, p)[1]))(x))
+    cosine = np.sum(normal * (x - closest) / gap[:, None], axis=1)[outside]
+    angle = np.degrees(np.arccos(np.clip(cosine, -1, 1)))  # measured: median 1.0, 90th 2.8, largest 16
+    assert outside.sum() >= 200 and np.median(angle) < 2 and np.percentile(angle, 90) < 5 and angle.max() < 25
 
 
 def test_penetration_against_trimesh(default_hand, glass):
@@ -499,6 +509,28 @@ def test_synthesize_result(synthesized, default_hand, glass):
     assert (r.valid == (r.status == hands.HandStatus.VALID)).all()
     assert len(r.messages()) == 8 and set(r.joints_by_name(0)) == set(default_hand.joint_names)
     assert r.energy.shape == (8, 10) and np.isfinite(r.energy).all()
+
+
+def test_closing_moves_the_fingers_to_the_gap(synthesized, default_hand, glass):
+    """Closing the fingers onto the object (the final check's second candidate) brings each finger
+    that is farther than the gap nearer, leaves the nearer ones, and keeps the joint limits."""
+    from grasp_jax.hands import _energy, _synthesize
+
+    geom, hand, gap = hands.geometry(glass), default_hand, 1.2e-3
+    pose = np.concatenate([synthesized.position, synthesized.quaternion], axis=1)
+
+    def one(p, q):
+        closed = _synthesize._close_fingers(hand, geom, p, q, gap)
+        dist = lambda j: _energy.contacts(hand, geom, hands.forward(hand, p, j))[2]
+        return closed, dist(q), dist(closed)
+
+    with float64_scope():
+        closed, before, after = (np.asarray(a) for a in jax.jit(jax.vmap(one))(pose, synthesized.joints))
+    far = before > gap + 1e-4
+    assert far.sum() >= 4 and (after[far] < before[far]).all()
+    assert (np.abs(after - gap) < 2e-4).sum() > (np.abs(before - gap) < 2e-4).sum()
+    np.testing.assert_allclose(after[before < gap], before[before < gap], rtol=0, atol=1e-15)
+    assert (closed >= hand.lower - 1e-12).all() and (closed <= hand.upper + 1e-12).all()
 
 
 def test_same_seed_same_starts(default_hand, glass, synthesized):

@@ -49,6 +49,9 @@ SEGMENTS = 10
 OPEN_JITTER, STANDOFF, CLEARING_ROUNDS = 0.1, (0.005, 0.02), 8
 #: Pre-grasp and squeeze: joints moved (rad, largest joint) away from / into the object.
 PREGRASP, SQUEEZE = 0.3, 0.1
+#: The best iterate's fingers are closed onto the object (to the energy's contact gap) in this many
+#: Gauss-Newton rounds of at most CLOSING_STEP rad per joint.
+CLOSING_ROUNDS, CLOSING_STEP = 3, 0.1
 #: Hand surface samples per collision element for the final penetration check, the patches of them
 #: nearest the object read by the grid per grasp, and the deepest samples there checked against
 #: the mesh.
@@ -114,7 +117,8 @@ def synthesize(hand: Hand, obj, *, starts: int = 256, steps: int = 200, mu: floa
         hand_d, geom_d = cast(hand), cast(geom)
         best_pose, best_joints, energies = _run(hand_d, geom_d, cast((pose, joints)), mu, objective, num_edges,
                                                 iterations, contact, weights, steps, progress)
-        result = _score(hand_d, geom_d, obj, best_pose, best_joints, mu, num_edges, contact, objective, iterations)
+        result = _score(hand_d, geom_d, obj, best_pose, best_joints, mu, num_edges, contact, objective, iterations,
+                        weights.gap)
     return HandGraspResult(
         **result, energy=energies, initial_position=pose[:, :3], initial_quaternion=pose[:, 3:],
         initial_joints=joints, joint_names=hand.joint_names, hand=hand.name, object_name=str(obj.name),
@@ -237,12 +241,34 @@ def _run(hand, geom, init, mu, kind, num_edges, iterations, contact, weights, st
 
 
 
+def _close_fingers(hand, geom, pose, joints, target):
+    """The joints ``(J,)`` with each finger's contact moved to ``target`` (m) from the surface by
+    :data:`CLOSING_ROUNDS` Gauss-Newton steps on its own joints (at most :data:`CLOSING_STEP` rad
+    per joint and round), as a hand closes onto an object; a finger nearer than ``target`` stays."""
+
+    def distances(q):
+        return contacts(hand, geom, forward(hand, pose, q))[2]
+
+    for _ in range(CLOSING_ROUNDS):
+        d, jac = distances(joints), jax.jacfwd(distances)(joints)  # (F,), (F, J)
+        far = jnp.maximum(d - target, 0.0)
+        move = -jnp.sum((far / jnp.maximum(jnp.sum(jac * jac, axis=1), 1e-12))[:, None] * jac, axis=0)
+        move = move * jnp.minimum(1.0, CLOSING_STEP / jnp.maximum(jnp.max(jnp.abs(move)), 1e-12))
+        joints = jnp.clip(joints + move, hand.lower, hand.upper)
+    return joints
+
+
+def _closed_one(pose, joints, shared):
+    hand, geom, target = shared
+    return _close_fingers(hand, geom, pose, joints, target)
+
+
 def _final_one(pose, joints, shared):
-    """For one grasp: the chosen candidates, their distances, the hand's deepest surface samples,
-    and the pre-grasp and squeeze joints."""
+    """For one grasp: the chosen candidates, the hand's deepest surface samples, and the pre-grasp
+    and squeeze joints."""
     hand, geom, samples, sample_link = shared
     frames = forward(hand, pose, joints)
-    _, _, dist, k = contacts(hand, geom, frames)
+    _, _, _, k = contacts(hand, geom, frames)
     cand = transform_points(frames, jnp.asarray(hand.finger_link)[:, None], hand.candidate_point)
     chosen = jnp.take_along_axis(cand, k[:, None, None], axis=1)[:, 0]
     world = nearest_points(geom, frames, samples, sample_link, NEAR_DENSE)
@@ -256,16 +282,28 @@ def _final_one(pose, joints, shared):
     g = g / jnp.maximum(jnp.max(jnp.abs(g)), 1e-12)
     squeeze = jnp.clip(joints - SQUEEZE * g, hand.lower, hand.upper)
     pregrasp = jnp.clip(joints + PREGRASP * g, hand.lower, hand.upper)
-    return chosen, dist, deepest, pregrasp, squeeze
+    return chosen, deepest, pregrasp, squeeze
 
 
-def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iterations) -> dict:
-    """The fields of :class:`HandGraspResult` that describe the grasps ``pose, joints``, scored on
-    the mesh."""
+def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iterations, gap) -> dict:
+    """The fields of :class:`HandGraspResult` for the grasps ``pose, joints``, scored on the mesh:
+    of each grasp as optimized and with its fingers closed onto the object (:func:`_close_fingers`),
+    the closed one where it is valid."""
+    count = pose.shape[0]
+    closed = map_grasps(_closed_one, (pose, joints), (hand, geom, jnp.asarray(gap, pose.dtype)), (count,),
+                        block=BLOCKS)
+    both = _score_rows(hand, geom, obj, jnp.concatenate([pose, pose]), jnp.concatenate([joints, closed]), mu,
+                       num_edges, contact)
+    pick = np.where(both["valid"][count:], np.arange(count) + count, np.arange(count))
+    return {key: value[pick] for key, value in both.items()}
+
+
+def _score_rows(hand, geom, obj, pose, joints, mu, num_edges, contact) -> dict:
+    """The fields of :class:`HandGraspResult` that describe the grasps ``pose, joints``."""
     count, fingers = pose.shape[0], hand.num_fingers
     samples, links = geo.dense_samples(hand.collisions, PENETRATION_SAMPLES)
     shared = (hand, geom, jnp.asarray(samples, pose.dtype), jnp.asarray(links))
-    chosen, _, deepest, pregrasp, squeeze = map_grasps(_final_one, (pose, joints), shared, (count,), block=BLOCKS)
+    chosen, deepest, pregrasp, squeeze = map_grasps(_final_one, (pose, joints), shared, (count,), block=BLOCKS)
     chosen = np.asarray(chosen, dtype=np.float64).reshape(-1, 3)
     mesh = obj.mesh
     closest, gap, tri = trimesh.proximity.closest_point(mesh, chosen)
