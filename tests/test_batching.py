@@ -177,10 +177,11 @@ def test_zero_size_batch():
 def test_fast_pass_and_retry_equal_one_full_pass():
     """The concrete path scores a chunk with a short iteration budget and re-solves, gathered,
     the grasps it leaves unfinished (``_batch.Retry``): the results are those of one pass with
-    the full budget, and some grasps did need the second pass."""
+    the full budget, and some grasps did need the second pass. (The full pass in chunks of
+    test_chunks's program: its results do not depend on the chunk size, test_chunks.)"""
     p, n = _batch_of(3000, seed=11)
     fast = gj.evaluate(p, n, mu=MU)
-    full = _full_budget(p, n, None)
+    full = _full_budget(p, n, _retry_chunk())
     _assert_same(fast, full, exact=False)
     np.testing.assert_array_equal(np.asarray(gj.evaluate(p, n, mu=MU, iterations=30).quality), np.asarray(full.quality))
     first = api.first_pass_iterations(api._lp_columns(N, D, 8))

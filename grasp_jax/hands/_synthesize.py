@@ -4,9 +4,10 @@ Starts: wrist poses around the object, the palm facing it, the joints opened. Ea
 every start at once (``_batch.map_grasps``, segment after segment): the energy of ``_energy``,
 its gradient with respect to the wrist position, quaternion and joints, one Adam update (per-group
 rates, cosine decay), the quaternion normalized and the joints clipped to their limits. The best
-iterate (lowest energy) of each start is scored on the mesh: contacts at the closest mesh points
-of the chosen candidates, ``gj.evaluate`` (soft contacts by default), the penetration of the
-hand's deepest dense samples measured on the mesh.
+iterate (lowest energy) of each start is scored on the mesh as it is and with its fingers closed
+onto the object (the closed one kept where it is valid): contacts at the closest mesh points of the
+chosen candidates, ``gj.evaluate`` (soft contacts by default), the penetration of the hand's
+deepest dense samples measured on the mesh.
 """
 
 from __future__ import annotations
