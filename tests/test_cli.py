@@ -1,4 +1,5 @@
-"""The ``grasp-jax`` command line, run as a subprocess (``python -m grasp_jax``).
+"""The ``grasp-jax`` command line, run as a subprocess (``python -m grasp_jax``; the commands of one
+test in one child process, ``grasp_jax_runs``).
 
 Runs are small (2,000 grasps) and share one XLA compilation cache (the suite's, see
 ``conftest.py``), so only the first run of a session compiles, and none once the suite has run.
@@ -42,14 +43,48 @@ def grasp_jax(*args, env, cwd, timeout=300, check=True):
     return out
 
 
+#: The child of :func:`grasp_jax_runs`: ``main`` of each command in turn, its output kept apart.
+_RUNS = """
+import contextlib, io, json, sys, traceback
+from grasp_jax.cli import main
+results = []
+for args in json.loads(sys.argv[1]):
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        try:
+            code = main(args)
+        except BaseException:
+            traceback.print_exc()
+            code = -1
+    results.append([code, stdout.getvalue(), stderr.getvalue()])
+print("RESULTS" + json.dumps(results))
+"""
+
+
+def grasp_jax_runs(*commands, env, cwd, timeout=300):
+    """Several ``grasp-jax`` commands one after another in one child process (``main`` of each in
+    turn: the first as in a fresh process, the next ones without a process start and the loading
+    of the programs again), each checked as :func:`grasp_jax` checks its process."""
+    commands = [[str(a) for a in args] for args in commands]
+    proc = subprocess.run([sys.executable, "-c", _RUNS, json.dumps(commands)], env=env, cwd=cwd,
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, f"rc {proc.returncode}\n{proc.stderr}"
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULTS")][-1]
+    outs = []
+    for args, (code, stdout, stderr) in zip(commands, json.loads(line[len("RESULTS"):])):
+        assert code == 0, f"{args}: rc {code}\n{stdout}\n{stderr}"
+        assert "Traceback" not in stderr, (args, stderr)
+        outs.append(subprocess.CompletedProcess(args, code, stdout, stderr))
+    return outs
+
+
 @pytest.fixture(scope="module")
 def sampled(env, tmp_path_factory):
     """``sample glass`` to .npz (with a figure) and to .parquet, same seed."""
     d = tmp_path_factory.mktemp("cli")
-    npz = grasp_jax("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.npz", "--plot", "g.png",
-                    env=env, cwd=d)
-    parquet = grasp_jax("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.parquet", "--quiet",
-                        env=env, cwd=d)
+    npz, parquet = grasp_jax_runs(
+        ("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.npz", "--plot", "g.png"),
+        ("sample", "glass", "--num", NUM, "--seed", "5", "--out", "g.parquet", "--quiet"), env=env, cwd=d)
     return d, npz, parquet
 
 
@@ -77,7 +112,8 @@ def test_sample_writes_both_formats_with_metadata(sampled):
 
 def test_score_round_trip_gives_the_same_verdicts(sampled, env):
     d, _, _ = sampled
-    out = grasp_jax("score", "g.parquet", "--out", "rescored.npz", "--json", env=env, cwd=d)
+    out, other = grasp_jax_runs(("score", "g.parquet", "--out", "rescored.npz", "--json"),
+                                ("score", "g.npz", "--mu", "0.1", "--json"), env=env, cwd=d)
     summary = json.loads(out.stdout)
     assert summary["agree"] == 2000
     a, _ = storage.read_results(d / "g.parquet")
@@ -86,22 +122,21 @@ def test_score_round_trip_gives_the_same_verdicts(sampled, env):
     np.testing.assert_array_equal(a["quality"], b["quality"])
     assert meta["mu"] == 0.364 and meta["object"] == "glass"  # taken from the file
     # Other settings give other verdicts.
-    out = grasp_jax("score", "g.npz", "--mu", "0.1", "--json", env=env, cwd=d)
-    assert json.loads(out.stdout)["force_closure"] < a["force_closure"].sum()
+    assert json.loads(other.stdout)["force_closure"] < a["force_closure"].sum()
 
 
 def test_soft_contacts_from_the_command_line(env, tmp_path):
     """Two soft fingers hold grasps of a sphere (hard ones never do); score takes the contact model
     from the file's metadata, and --contact hard on the same file finds no force-closure."""
-    grasp_jax("sample", "sphere", "--fingers", "2", "--num", NUM, "--contact", "soft", "--patch-radius", "0.01",
-              "--out", "soft.npz", "--quiet", env=env, cwd=tmp_path)
+    _, soft, hard = grasp_jax_runs(
+        ("sample", "sphere", "--fingers", "2", "--num", NUM, "--contact", "soft", "--patch-radius", "0.01",
+         "--out", "soft.npz", "--quiet"),
+        ("score", "soft.npz", "--json"), ("score", "soft.npz", "--contact", "hard", "--json"), env=env, cwd=tmp_path)
     a, meta = storage.read_results(tmp_path / "soft.npz")
     assert meta["contact"] == "soft" and meta["torsion"] == pytest.approx(2 / 3 * 0.364 * 0.01)
     assert 0.02 < a["force_closure"].mean() < 0.5
-    out = grasp_jax("score", "soft.npz", "--json", env=env, cwd=tmp_path)
-    assert json.loads(out.stdout)["agree"] == 2000
-    out = grasp_jax("score", "soft.npz", "--contact", "hard", "--json", env=env, cwd=tmp_path)
-    assert json.loads(out.stdout)["force_closure"] == 0
+    assert json.loads(soft.stdout)["agree"] == 2000
+    assert json.loads(hard.stdout)["force_closure"] == 0
 
 
 def test_score_a_plain_user_file(env, tmp_path):
@@ -114,12 +149,12 @@ def test_score_a_plain_user_file(env, tmp_path):
 
 def test_show_draws_the_best_grasps(sampled, env):
     d, _, _ = sampled
-    out = grasp_jax("show", "g.npz", "--top", "3", env=env, cwd=d)
+    out, _ = grasp_jax_runs(("show", "g.npz", "--top", "3"), ("show", "g.parquet", "--plot", "best.png"), env=env,
+                            cwd=d)
     assert (d / "g.png").exists()
     a, _ = storage.read_results(d / "g.npz")
     best = int(np.argmax(np.where(a["force_closure"], a["quality"], -1)))
     assert out.stdout.splitlines()[1].split()[:2] == ["1", str(best)]
-    grasp_jax("show", "g.parquet", "--plot", "best.png", env=env, cwd=d)
     assert (d / "best.png").stat().st_size > 10_000
 
 
@@ -127,15 +162,14 @@ def test_polygon_with_a_hole_round_trips(env, tmp_path):
     """--hole cuts a hole in a CSV polygon; score and show find it again from the metadata."""
     (tmp_path / "square.csv").write_text("0,0\n4,0\n4,4\n0,4\n")
     (tmp_path / "hole.csv").write_text("1,1\n3,1\n3,3\n1,3\n")
-    grasp_jax("sample", "square.csv", "--hole", "hole.csv", "--fingers", "3", "--num", NUM, "--quiet",
-              "--out", "sq.npz", env=env, cwd=tmp_path)
+    _, _, out = grasp_jax_runs(
+        ("sample", "square.csv", "--hole", "hole.csv", "--fingers", "3", "--num", NUM, "--quiet", "--out", "sq.npz"),
+        ("show", "sq.npz", "--plot", "sq.png"), ("score", "sq.npz", "--epsilon", "--json"), env=env, cwd=tmp_path)
     a, meta = storage.read_results(tmp_path / "sq.npz")
     assert meta["object_holes"] == [str(tmp_path / "hole.csv")]
     # a quarter of the boundary length is the hole's: its contacts are inside the exterior
     inner = np.all((a["points"] > 0.5) & (a["points"] < 3.5), axis=-1)
     assert 0.15 < inner.mean() < 0.35
-    grasp_jax("show", "sq.npz", "--plot", "sq.png", env=env, cwd=tmp_path)
-    out = grasp_jax("score", "sq.npz", "--epsilon", "--json", env=env, cwd=tmp_path)
     assert json.loads(out.stdout)["agree"] == 2000
     # files are published with the usual permissions (0666 less the umask), not mkstemp's 0600
     mask = os.umask(0o022)
