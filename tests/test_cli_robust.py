@@ -12,7 +12,7 @@ import numpy as np
 
 from grasp_jax import storage
 
-from test_cli import env, grasp_jax  # noqa: F401 - the fixture and the runner
+from test_cli import env, grasp_jax, grasp_jax_runs  # noqa: F401 - the fixture and the runners
 
 NOISE = ["--sigma-pos", "0.02", "--mu-range", "0.8,1.2", "--sigma-pose", "0.02,0.01"]
 ROBUST = ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "robust_unconverged")
@@ -44,8 +44,12 @@ def _python_labels(env, cwd, name):
 
 
 def test_sample_and_score_write_robust_columns(env, tmp_path, in_process, capsys):  # noqa: F811
-    out = grasp_jax("sample", "sphere", "--num", "300", "--seed", "3", "--robust", "8", *NOISE, "--no-margin",
-                    "--chunk", "150", "--devices", "1", "--out", "s.npz", env=env, cwd=tmp_path)
+    # sample, then score the file again with the same noise and seed (one child process, in turn)
+    out, _ = grasp_jax_runs(
+        ("sample", "sphere", "--num", "300", "--seed", "3", "--robust", "8", *NOISE, "--no-margin", "--chunk", "150",
+         "--devices", "1", "--out", "s.npz"),
+        ("score", "s.npz", "--robust", "8", *NOISE, "--robust-seed", "3", "--no-margin", "--devices", "1",
+         "--out", "r.parquet", "--quiet"), env=env, cwd=tmp_path)
     assert "robust         8 perturbations" in out.stdout and "P(FC) mean" in out.stdout
     a, meta = storage.read_results(tmp_path / "s.npz")
     assert set(ROBUST) <= set(a) and "margin_mean" not in a
@@ -57,9 +61,7 @@ def test_sample_and_score_write_robust_columns(env, tmp_path, in_process, capsys
     np.testing.assert_array_equal(a["p_fc"], res["p_fc"])
     np.testing.assert_allclose(a["q_mean"], res["q_mean"], rtol=1e-9, atol=1e-12)  # another program: LP tolerance
     assert 0 < a["p_fc"].mean() < 1 and np.all(a["p_fc"][~a["force_closure"]] <= 1)
-    # score the file again with the same noise and seed: the same labels, beside the nominal columns
-    grasp_jax("score", "s.npz", "--robust", "8", *NOISE, "--robust-seed", "3", "--no-margin", "--devices", "1",
-              "--out", "r.parquet", "--quiet", env=env, cwd=tmp_path)
+    # score: the same labels, beside the nominal columns
     b, meta_b = storage.read_results(tmp_path / "r.parquet")
     for name in ROBUST + ("force_closure", "quality"):
         np.testing.assert_array_equal(b[name], a[name], err_msg=name)
