@@ -206,9 +206,11 @@ def test_bad_input_raises_one_clear_error(sphere_grasps):
 def test_cli_writes_recast_robust_columns(in_process, tmp_path, capsys):
     trimesh.creation.box(extents=(0.06, 0.04, 0.03)).export(tmp_path / "block.stl")
     noise = ["--sigma-pos", "0.02", "--mu-range", "0.8,1.2", "--sigma-pose", "0.05,0.02"]
+    # (no critical friction, on by default with a gripper: its columns from the command line are
+    # test_grippers.py's test_cli_sample_parallel_jaw_writes_the_columns)
     rc = in_process(["sample", "block.stl", "--gripper", "parallel-jaw", "--max-width", "0.1", "--num", "48",
-                     "--mu", "0.5", "--seed", "2", "--robust", "4", *noise, "--no-margin", "--out", "jaws.parquet",
-                     "-q"])
+                     "--mu", "0.5", "--seed", "2", "--robust", "4", *noise, "--no-margin", "--no-critical-friction",
+                     "--out", "jaws.parquet", "-q"])
     assert rc == 0, capsys.readouterr().err
     a, meta = storage.read_results(tmp_path / "jaws.parquet")
     for name in ("p_fc", "p_fc_se", "q_mean", "q_mean_se", "q_low", "robust_unconverged"):
