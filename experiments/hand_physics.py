@@ -5,8 +5,9 @@ steps of ``hands.synthesize`` (grasp_jax's closure objective, soft contacts, mu 
 valid grasp (the fingers within 2 mm of the surface force-closure, penetration <= 1 mm) is
 simulated by ``sim.simulate_hand`` (default ``Protocol``: the hand's joints under position control,
 gain ``hand_kp``, pre-grasp -> grasp -> squeeze, then the six forces). Reported: valid grasps, the
-held rate among them (BODex's benchmark: above 75%), split by whether every finger touches, the
-statuses, the held rate per direction, and the AUC of Q for held among the valid ones; the invalid
+held rate among them (BODex's benchmark: above 75%), split by whether every finger touches and by
+whether the fingers were closed after the optimization, the statuses, the held rate per direction,
+and the AUC of Q for held among the valid ones; the invalid
 grasps are simulated too, for contrast. Writes ``results.md`` and ``results.json``.
 
     python experiments/hand_physics.py [--starts 64] [--steps 100] [--hands allegro leap]
@@ -78,20 +79,24 @@ def main(argv=None):
                            # the valid grasps whose every finger touches, and those with one that does not
                            **{f"{name}_held": [int(res.success[m].sum()), int(m.sum())] for name, m in
                               (("all_touch", result.active[valid].all(axis=1)),
-                               ("some_hover", ~result.active[valid].all(axis=1)))},
+                               ("some_hover", ~result.active[valid].all(axis=1)),
+                               ("closed", result.closed[valid]), ("as_optimized", ~result.closed[valid]))},
                            simulate_s=time.perf_counter() - t)
             records.append(rec)
             print(rec, flush=True)
             rows.append([hand_name, obj_name, rec["valid"], rec.get("held", 0), rec.get("held_rate", float("nan")),
                          rec["invalid_held_rate"], "{}/{}".format(*rec.get("all_touch_held", (0, 0))),
                          "{}/{}".format(*rec.get("some_hover_held", (0, 0))),
+                         "{}/{}".format(*rec.get("closed_held", (0, 0))),
+                         "{}/{}".format(*rec.get("as_optimized_held", (0, 0))),
                          rec.get("status", {}).get("NO_CONTACT", 0), rec.get("status", {}).get("PENETRATION", 0),
                          rec.get("q_auc", float("nan")), synth_s, rec.get("simulate_s", 0.0)])
         timer.lap(hand_name)
     valid = sum(r["valid"] for r in records)
     held = sum(r.get("held", 0) for r in records)
     header = ["hand", "object", "valid", "held", "held rate", "held rate of the invalid",
-              "held / valid, every finger touching", "held / valid, a finger not touching", "no contact",
+              "held / valid, every finger touching", "held / valid, a finger not touching",
+              "held / valid, fingers closed", "held / valid, as optimized", "no contact",
               "penetration", "AUC of Q",
               "synthesize s", "simulate s"]
     text = (f"# Synthesized hand grasps in MuJoCo\n\n{args.starts} starts x {args.steps} steps; "

@@ -507,6 +507,7 @@ def test_synthesize_result(synthesized, default_hand, glass):
     np.testing.assert_array_equal(fc, r.force_closure)
     np.testing.assert_array_equal(r.valid, fc & (r.penetration <= 1e-3))
     assert (r.valid == (r.status == hands.HandStatus.VALID)).all()
+    assert r.closed.dtype == bool and (r.valid[r.closed]).all()  # a closed grasp is kept only when valid
     assert len(r.messages()) == 8 and set(r.joints_by_name(0)) == set(default_hand.joint_names)
     assert r.energy.shape == (8, 10) and np.isfinite(r.energy).all()
 
@@ -556,11 +557,14 @@ def test_save_and_load(synthesized, tmp_path, suffix):
 
 
 def test_load_a_file_without_active(synthesized, tmp_path):
-    """A result written before ``active`` existed reads back with it from the distances."""
-    cols = {k: v for k, v in synthesized.columns().items() if k != "active"}
+    """A result written before ``active`` and ``closed`` existed reads back with them (from the
+    distances; not closed)."""
+    cols = {k: v for k, v in synthesized.columns().items() if k not in ("active", "closed")}
     path = tmp_path / "old.npz"
     np.savez(path, metadata=np.asarray(json.dumps(synthesized.metadata())), **cols)
-    np.testing.assert_array_equal(hands.load_result(path).active, np.abs(synthesized.distance) <= 2e-3)
+    back = hands.load_result(path)
+    np.testing.assert_array_equal(back.active, np.abs(synthesized.distance) <= 2e-3)
+    assert back.closed.shape == (8,) and not back.closed.any()
 
 
 def test_distinct_drops_copies(synthesized):

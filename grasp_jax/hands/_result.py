@@ -48,6 +48,8 @@ class HandGraspResult:
             contacts (a finger that does not touch is no contact).
         valid: ``(S,)`` at least two active contacts, force-closure, and penetration <=
             :data:`MAX_PENETRATION`; ``status: (S,) int8`` :class:`HandStatus`.
+        closed: ``(S,)`` the grasp is the optimized one with its fingers closed onto the object
+            (kept because it is valid); else the optimized one as it is.
         energy: ``(S, steps)`` the energy of each step's iterate (the grasp is the iterate of the
             lowest).
         initial_position, initial_quaternion, initial_joints: the starts.
@@ -69,6 +71,7 @@ class HandGraspResult:
     quality: np.ndarray
     valid: np.ndarray
     status: np.ndarray
+    closed: np.ndarray
     energy: np.ndarray
     initial_position: np.ndarray
     initial_quaternion: np.ndarray
@@ -193,6 +196,8 @@ def load(path) -> HandGraspResult:
             cols[name] = np.asarray(col.to_numpy(zero_copy_only=False)).reshape((table.num_rows, *shape))
     if "active" not in cols:  # written before results had the field
         cols["active"] = np.abs(cols["distance"]) <= meta.get("max_distance", MAX_DISTANCE)
+    if "closed" not in cols:  # written before the fingers were closed
+        cols["closed"] = np.zeros(len(cols["valid"]), bool)
     return HandGraspResult(**cols, joint_names=tuple(meta["joint_names"]), hand=meta["hand"],
                            object_name=meta["object"], objective_name=meta["objective"], contact=meta["contact"],
                            mu=meta["mu"], steps=meta["steps"], seconds=meta["seconds"],

@@ -295,8 +295,9 @@ def _score(hand, geom, obj, pose, joints, mu, num_edges, contact, kind, iteratio
                         block=BLOCKS)
     both = _score_rows(hand, geom, obj, jnp.concatenate([pose, pose]), jnp.concatenate([joints, closed]), mu,
                        num_edges, contact)
-    pick = np.where(both["valid"][count:], np.arange(count) + count, np.arange(count))
-    return {key: value[pick] for key, value in both.items()}
+    closed_valid = both["valid"][count:]
+    pick = np.where(closed_valid, np.arange(count) + count, np.arange(count))
+    return {**{key: value[pick] for key, value in both.items()}, "closed": closed_valid}
 
 
 def _score_rows(hand, geom, obj, pose, joints, mu, num_edges, contact) -> dict:
