@@ -248,10 +248,11 @@ def _close_fingers(hand, geom, pose, joints, target):
     per joint and round), as a hand closes onto an object; a finger nearer than ``target`` stays."""
 
     def distances(q):
-        return contacts(hand, geom, forward(hand, pose, q))[2]
+        d = contacts(hand, geom, forward(hand, pose, q))[2]
+        return d, d
 
     for _ in range(CLOSING_ROUNDS):
-        d, jac = distances(joints), jax.jacfwd(distances)(joints)  # (F,), (F, J)
+        jac, d = jax.jacfwd(distances, has_aux=True)(joints)  # (F, J), (F,)
         far = jnp.maximum(d - target, 0.0)
         move = -jnp.sum((far / jnp.maximum(jnp.sum(jac * jac, axis=1), 1e-12))[:, None] * jac, axis=0)
         move = move * jnp.minimum(1.0, CLOSING_STEP / jnp.maximum(jnp.max(jnp.abs(move)), 1e-12))
