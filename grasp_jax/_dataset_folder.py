@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from . import __version__
 from .storage import fsync_dir, write_atomically
 
 MANIFEST = "_manifest.json"  # "_": readers of the Parquet dataset skip it (as Spark's _SUCCESS)
@@ -28,8 +29,6 @@ class DatasetError(ValueError):
 def versions() -> dict:
     """Versions of grasp_jax, Python and the libraries the results depend on."""
     from importlib import metadata
-
-    from . import __version__
 
     out = {"grasp_jax": __version__, "python": sys.version.split()[0]}
     for name in ("jax", "jaxlib", "numpy", "trimesh", "pyarrow"):

@@ -12,6 +12,9 @@ import warnings
 from collections.abc import Mapping
 from typing import ClassVar
 
+from ._robust import robust
+from .grippers import ParallelJaw, robust_jaws
+
 
 @dataclasses.dataclass(frozen=True)
 class RobustLabels:
@@ -55,13 +58,11 @@ class RobustLabels:
         """``{column: (N,) array}`` of the grasps ``points``, ``normals`` ``(N, n, d)``."""
         import jax
 
-        import grasp_jax as gj
-
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-            res = gj.robust(self.obj, points, normals, mu=mu, noise=self.noise, key=jax.random.key(self.seed),
-                            samples=self.samples, quantile=self.quantile, num_edges=num_edges,
-                            torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
+            res = robust(self.obj, points, normals, mu=mu, noise=self.noise, key=jax.random.key(self.seed),
+                         samples=self.samples, quantile=self.quantile, num_edges=num_edges,
+                         torque_test=torque_test, contact=contact, torsion=torsion, margin=self.margin)
         return {self.COLUMNS[f]: v for f, v in res.columns().items()}
 
     def jaw_columns(self, chunk: Mapping, *, gripper, collision: bool, mu, num_edges, torque_test, contact,
@@ -69,8 +70,6 @@ class RobustLabels:
         """``{column: (N,) array}`` of the parallel-jaw grasps of ``chunk`` (``center``, ``axis``,
         ``width``[, ``approach``]) by :func:`grasp_jax.grippers.robust_jaws` on ``obj``'s mesh."""
         import jax
-
-        from .grippers import robust_jaws
 
         approaches = chunk.get("approach") if collision else None
         with warnings.catch_warnings():
@@ -89,8 +88,6 @@ def recast_jaws(robust: RobustLabels | None, extra_fields: tuple, metadata: Mapp
         return None
     if not {"center", "axis", "width", "jaw_status"} <= set(extra_fields):
         return None
-    from .grippers import ParallelJaw
-
     gripper = metadata.get("gripper")
     gripper = ParallelJaw.from_dict(gripper) if isinstance(gripper, Mapping) else None
     collision = bool(metadata.get("collision")) and gripper is not None and gripper.has_body \

@@ -27,6 +27,7 @@ from ._closure import exact_torque_2d, min_weight_value
 from ._cones import cone_edges, safe_normalize
 from ._constants import DEFAULT_NUM_EDGES, tolerances
 from ._contact import ContactModel, wrench_columns
+from ._friction import FrictionStatus, critical_friction_one
 from ._programs import SHIFT, about_first, quality_lp
 from ._validate import check_scalar
 from ._wrench import cross
@@ -164,8 +165,6 @@ def friction_objective(points, normals, model: ContactModel, center, scale, iter
                        best_effort=False) -> jax.Array:
     """``-mu*`` where the grasp is force-closure at :data:`FRICTION_CAP`, else ``-cap + K l*(cap)``
     (see the module docstring). The search itself always has the full interior-point budget."""
-    from ._friction import FrictionStatus, critical_friction_one
-
     points = jnp.asarray(points)
     cap = jnp.asarray(FRICTION_CAP, points.dtype)
     mu_star, status = critical_friction_one(points, normals, cap, model)

@@ -19,7 +19,12 @@ from collections.abc import Iterable, Iterator, Mapping
 
 import numpy as np
 
+from . import storage
+from ._api import critical_friction, evaluate, friction_label
+from ._baseline import ferrari_canny
+from ._batch import _sizes, pad_rows
 from ._labels import RobustLabels, recast_jaws
+from .grippers._score import mask_failed
 from .summary import DEFAULT_TOP, PERCENTILES, PipelineSummary, _QualityHistogram, _TopK
 
 #: Fewest grasps per device in one compiled call (four blocks of ``grasp_jax._batch.BLOCK``).
@@ -120,8 +125,6 @@ def _jsonable(x):
 
 
 def _pad(a: np.ndarray, size: int) -> np.ndarray:
-    from ._batch import pad_rows
-
     return pad_rows(a, size)
 
 
@@ -155,10 +158,8 @@ def _evaluate_chunk() -> int:
     import jax
 
     try:
-        from ._batch import _sizes
-
         return int(_sizes(tuple(jax.local_devices()), None)[1])
-    except (ImportError, AttributeError, TypeError, IndexError):  # internals changed: pad fully
+    except (AttributeError, TypeError, IndexError):  # internals changed: pad fully
         return 1 << 62
 
 
@@ -169,8 +170,6 @@ def _evaluate_chunk() -> int:
 def _layout(scoring: Scoring, metadata: Mapping, extra_fields: tuple, recast, dim: int) -> tuple[list, dict]:
     """``(fields, metadata)`` of the result file: the scored columns, the written-through ones and
     the settings of the optional columns."""
-    from . import storage
-
     fields = list(storage.RESULT_FIELDS) + list(extra_fields)
     if scoring.epsilon:
         fields += ["epsilon", "volume"]
@@ -216,39 +215,33 @@ def _pad_size(rows: int, devices: int) -> int:
 
 def _nominal(scoring: Scoring, points, normals, pad_to: int) -> dict:
     """``points``, ``normals`` and their ``force_closure``, ``quality``, ``converged`` ``(N,)``."""
-    import grasp_jax as gj
-
     rows = len(points)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-        res = gj.evaluate(_pad(points, pad_to), _pad(normals, pad_to), mu=scoring.mu,
-                          torque_test=scoring.torque_test, **scoring.model)
+        res = evaluate(_pad(points, pad_to), _pad(normals, pad_to), mu=scoring.mu,
+                       torque_test=scoring.torque_test, **scoring.model)
     return dict(points=points, normals=normals, force_closure=np.asarray(res.force_closure)[:rows],
                 quality=np.asarray(res.quality)[:rows], converged=np.asarray(res.converged)[:rows])
 
 
 def _critical(scoring: Scoring, points, normals, pad_to: int) -> dict:
     """``critical_mu``, ``critical_status`` ``(N,)`` (:func:`grasp_jax.critical_friction`)."""
-    import grasp_jax as gj
-
     rows = len(points)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".*did not converge", category=RuntimeWarning)
-        need, status = gj.critical_friction(_pad(points, pad_to), _pad(normals, pad_to), **scoring.model)
+        need, status = critical_friction(_pad(points, pad_to), _pad(normals, pad_to), **scoring.model)
     return dict(critical_mu=np.asarray(need, np.float64)[:rows], critical_status=np.asarray(status, np.int8)[:rows])
 
 
 def _epsilon(scoring: Scoring, points, normals, bar) -> dict:
     """``epsilon``, ``volume`` ``(N,)`` by qhull (:func:`grasp_jax.ferrari_canny`), in steps of
     :data:`_EPSILON_STEP` grasps that move the progress bar."""
-    import grasp_jax as gj
-
     rows = len(points)
     eps = np.empty(rows)
     vol = np.empty(rows)
     step = _EPSILON_STEP
     for s in range(0, rows, step):
-        eps[s:s + step], vol[s:s + step] = gj.ferrari_canny(
+        eps[s:s + step], vol[s:s + step] = ferrari_canny(
             points[s:s + step], normals[s:s + step], mu=scoring.mu, origin=scoring.origin,
             torque_scale=scoring.torque_scale, **scoring.model)
         if bar is not None:
@@ -270,8 +263,6 @@ def _mask_failed_jaws(batch: dict, jaw_status, robust: bool = True) -> None:
     (``grasp_jax.grippers.score_grasps``'s rule), in place; ``robust``: their robust labels 0 too
     (their fill contacts perturbed as free contacts mean nothing; re-cast jaws keep their labels:
     a perturbed pose may close where the nominal one does not)."""
-    from .grippers._score import mask_failed
-
     fc, q, mu, st = mask_failed(jaw_status, batch["force_closure"], batch["quality"], batch.get("critical_mu"),
                                 batch.get("critical_status"))
     batch.update(force_closure=fc, quality=q)
@@ -391,8 +382,6 @@ class _Tally:
 def _score_chunk(scoring: Scoring, chunk: Mapping, points, normals, pad_to: int, tally: _Tally, bar,
                  extra_fields: tuple, recast) -> dict:
     """Every column of one chunk, the running counts that need the nominal verdicts updated."""
-    import grasp_jax as gj
-
     batch = _nominal(scoring, points, normals, pad_to)
     fc = batch["force_closure"]
     if scoring.critical:
@@ -409,7 +398,7 @@ def _score_chunk(scoring: Scoring, chunk: Mapping, points, normals, pad_to: int,
     tally.compare(chunk, fc)
     _jaw_columns(batch, chunk, extra_fields, recast)
     if scoring.critical:
-        batch["friction_label"] = gj.friction_label(batch["critical_mu"])
+        batch["friction_label"] = friction_label(batch["critical_mu"])
         tally.critical_mu.add(np.minimum(batch["critical_mu"], CRITICAL_RANGE))
     return batch
 
@@ -419,8 +408,6 @@ def score(chunks: Iterable[Mapping], scoring: Scoring, *, num: int, fingers: int
           extra_fields: tuple = ()) -> PipelineSummary:
     """:func:`grasp_jax.pipeline.score_stream` with its scoring settings in one :class:`Scoring`."""
     import jax
-
-    from . import storage
 
     recast = recast_jaws(scoring.robust, tuple(extra_fields), metadata)
     fields, meta = _layout(scoring, metadata, extra_fields, recast, dim)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _dataset_folder as folder
+from . import hands, objects, pipeline, storage
 from ._dataset_folder import (  # noqa: F401 - public here
     FIGURE,
     MANIFEST,
@@ -79,8 +80,6 @@ def list_objects(source) -> list[ObjectEntry]:
                                "of meshes or a manifest file")
         entries = [ObjectEntry(_partition_name(f.stem), str(f.resolve())) for f in files]
     elif source.is_file():
-        from .objects import BUILTIN_NAMES
-
         for number, line in enumerate(source.read_text().splitlines(), 1):
             text = line.split("#", 1)[0].strip()
             if not text:
@@ -96,7 +95,7 @@ def list_objects(source) -> list[ObjectEntry]:
                     if not (math.isfinite(scale) and scale > 0):
                         raise DatasetError(f"{source}:{number}: the scale must be a number > 0; got {parts[1]!r}")
             spec = parts[0]
-            if spec.lower() in BUILTIN_NAMES and not (source.parent / spec).exists():
+            if spec.lower() in objects.BUILTIN_NAMES and not (source.parent / spec).exists():
                 entries.append(ObjectEntry(_partition_name(spec.lower()), spec.lower(), scale))
                 continue
             path = Path(spec).expanduser()
@@ -218,8 +217,6 @@ def config_of(*, fingers: int, num: int, seed: int, scheme: str, mu: float, num_
 
 def load_entry(entry: ObjectEntry):
     """The object of one dataset entry, scaled as its manifest says."""
-    from . import objects
-
     obj = objects.load(entry.spec)
     if entry.scale != 1.0:
         mesh = getattr(obj, "mesh", None)
@@ -333,8 +330,6 @@ def _sampling_settings(source, shard, *, num, fingers, mu, num_edges, seed, sche
                        robust, gripper, collision, critical, chunk):
     """``(config, build_one, entries, shard)`` of sampled and scored grasps (free contacts or a
     gripper's), checked in this order: the grasps' settings, the objects, the shard, the labels."""
-    from . import pipeline
-
     mu = 0.364 if mu is None else mu
     contact = "hard" if contact is None else contact
     fingers, critical = _grasp_settings(fingers=fingers, scheme=scheme, gripper=gripper, collision=collision,
@@ -349,7 +344,7 @@ def _sampling_settings(source, shard, *, num, fingers, mu, num_edges, seed, sche
     settings = dict(num=num, fingers=fingers, mu=mu, num_edges=num_edges, seed=seed, scheme=scheme,
                     torque_test=torque_test, contact=contact, torsion=torsion, chunk=chunk, gripper=gripper,
                     collision=collision, critical=critical)
-    return config, lambda entry, out: _build_one(entry, out, pipeline, robust=robust, **settings), entries, shard
+    return config, lambda entry, out: _build_one(entry, out, robust=robust, **settings), entries, shard
 
 
 def _grasp_settings(*, fingers, scheme: str, gripper, collision: bool, critical) -> tuple[int | None, bool]:
@@ -414,7 +409,7 @@ def _build_objects(mine: list, summary: DatasetSummary, config: dict, progress: 
         folder.write_manifest(out, config)
 
 
-def _build_one(entry: ObjectEntry, out: Path, pipeline, *, robust, **settings) -> dict:
+def _build_one(entry: ObjectEntry, out: Path, *, robust, **settings) -> dict:
     """Sample, score and write one object; its record (``done`` or ``failed`` with the reason)."""
     t0 = time.perf_counter()
     record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
@@ -453,8 +448,6 @@ def _hand_settings(hand, *, starts, steps, mu, contact, torsion, num_edges, seed
                    collision, critical):
     """``(config, build_one)`` of a dataset of ``hand``'s grasps (:func:`grasp_jax.hands.synthesize`);
     ``hand`` loaded where it is a file or ``"default"``."""
-    from . import hands
-
     given = [what for what, set_ in (("a gripper", gripper is not None or collision),
                                      ("robust labels", robust is not None), ("the critical friction", critical),
                                      ("fingers", fingers is not None), ("a sampling scheme", scheme != "uniform"),
@@ -482,8 +475,6 @@ def _hand_settings(hand, *, starts, steps, mu, contact, torsion, num_edges, seed
 def _build_one_hand(entry: ObjectEntry, out: Path, hand, **settings) -> dict:
     """Synthesize and write one object's hand grasps; its record (``done`` with the valid count and
     rate, the median Q of the valid grasps, or ``failed`` with the reason)."""
-    from . import hands
-
     t0 = time.perf_counter()
     record = {"name": entry.name, "spec": entry.spec, "scale": entry.scale}
     path = part_path(out, entry.name)
@@ -515,7 +506,7 @@ def plot_summary(out, path=None) -> Path | None:
     force-closure rate, median Q of its force-closure grasps and, with robust labels, mean
     P(force-closure), one row per object. Written atomically to ``path`` (default
     ``out/_summary.png``); ``None`` where no object is done yet."""
-    from . import storage, viz
+    from . import viz
 
     out = Path(out)
     rows = {k: r for k, r in sorted(folder.records(out).items()) if r.get("status") == "done"}

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from . import devices as _devices
+from . import grippers, storage
+from ._api import check_contact
 from ._labels import RobustLabels
 from ._labels import recast_jaws as _recast_jaws  # noqa: F401 - the name this module had
 from ._labels import with_object as _with_object
@@ -41,6 +43,7 @@ from ._stream import (  # noqa: F401 - the names this module had
 from ._stream import CRITICAL_RANGE as _CRITICAL_RANGE
 from ._stream import score as _score
 from .devices import part_path, slice_bounds
+from .sampling import iter_grasps
 from .summary import DEFAULT_TOP, PipelineSummary
 
 #: The paper's friction coefficient, tan(20 deg).
@@ -133,8 +136,6 @@ def _check_frame(origin, torque_scale, dim: int) -> tuple[np.ndarray, float]:
 def _check_contact(contact, torsion, dim: int) -> tuple[str, float | None]:
     """``(contact, torsion)`` validated (``grasp_jax._api.check_contact``); torsion ``None`` for
     hard contacts, as :func:`grasp_jax.evaluate` takes it."""
-    from ._api import check_contact
-
     contact, value = check_contact(contact, torsion, dim)
     return contact, (None if contact == "hard" else float(value))
 
@@ -215,7 +216,7 @@ def run(
     index, count = _devices.process_slot() if distributed else (0, 1)
     start, stop = slice_bounds(num, index, count)
     if out is not None:
-        out = part_path(_storage().check_output_path(out), index, count)
+        out = part_path(storage.check_output_path(out), index, count)
     if epsilon:
         origin, torque_scale = _check_frame(obj.center if origin is None else origin,
                                             obj.radius if torque_scale is None else torque_scale, obj.dim)
@@ -236,12 +237,6 @@ def run(
         chunks.close()
 
 
-def _storage():
-    from . import storage
-
-    return storage
-
-
 def _check_run(num, fingers, chunk, mu, num_edges, torque_test, top) -> tuple[int, int, int]:
     """``(num, fingers, chunk)`` of :func:`run` validated (``chunk`` ``None``: :func:`default_chunk`)."""
     if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 1:
@@ -257,7 +252,6 @@ def _run_metadata(obj, sampling: _Sampling, *, mu, num_edges, torque_test, conta
                   object_holes, critical: bool, slot: tuple[int, int]) -> dict:
     """The result file's metadata of :func:`run`: the object, the sampling and scoring settings,
     this process's slice."""
-    storage = _storage()
     first_contact = sampling.first_contact
     meta = storage.metadata(
         object=storage.object_spec(obj, object_spec),
@@ -286,15 +280,11 @@ def _run_metadata(obj, sampling: _Sampling, *, mu, num_edges, torque_test, conta
 def _run_chunks(obj, sampling: _Sampling, meta: dict, *, mu) -> tuple[_Prefetch, tuple]:
     """``(chunks, extra fields)``: this process's grasps of ``obj``, prefetched; with a gripper the
     antipodal parallel-jaw grasps and their pose columns (``meta`` records the gripper)."""
-    from . import sampling as _sampling
-
     s = sampling
     if s.gripper is None:
         kwargs = {} if s.first_contact is None else {"first_contact": s.first_contact}
-        stream = _sampling.iter_grasps(obj, s.num, s.fingers, seed=s.seed, scheme=s.scheme, chunk=s.chunk, **kwargs)
+        stream = iter_grasps(obj, s.num, s.fingers, seed=s.seed, scheme=s.scheme, chunk=s.chunk, **kwargs)
         return _Prefetch(_slice_chunks(stream, s.start, s.stop, s.chunk)), ()
-    from . import grippers
-
     if s.fingers != 2 or s.scheme != "uniform" or s.first_contact is not None or obj.dim != 3:
         raise ValueError("parallel-jaw grasps have 2 contacts on a 3D mesh, sampled antipodally: "
                          "leave fingers, scheme and first_contact at their defaults")
@@ -332,7 +322,6 @@ def score_file(
     agree. ``critical``: also the critical friction (columns :data:`CRITICAL_FIELDS`). Other
     arguments as :func:`run` (``robust``: noise that moves contacts needs ``obj``).
     """
-    storage = _storage()
     src = storage.ResultFile(path)
     stored = src.metadata
     mu = stored.get("mu", DEFAULT_MU) if mu is None else mu
@@ -377,7 +366,6 @@ def _file_frame(obj, origin, torque_scale, dim: int) -> tuple[np.ndarray, float]
 
 def _file_metadata(src, path, obj, *, mu, num_edges, torque_test, contact, torsion) -> dict:
     """The stored metadata of ``src`` with this scoring's settings and source."""
-    storage = _storage()
     stored = src.metadata
     meta = {k: v for k, v in stored.items() if k not in ("epsilon_origin", "epsilon_torque_scale", "torsion")}
     meta.update(storage.metadata(

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import __version__
 from ._atomic import (  # noqa: F401 - paths and atomic writes, re-exported where they were
     SUFFIXES,
     _umask,
@@ -87,8 +88,6 @@ _COPY = 1 << 24  # bytes per copy step when assembling an archive
 def metadata(**kwargs) -> dict:
     """A result file's metadata: the grasp_jax version and the date (UTC), then ``kwargs``."""
     import datetime
-
-    from . import __version__
 
     meta = {
         "grasp_jax_version": __version__,

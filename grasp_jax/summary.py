@@ -2,7 +2,7 @@
 are printed (:class:`PipelineSummary` for ``grasp-jax sample`` / ``score``, :func:`format_optimize`
 for ``grasp-jax optimize``).
 
-Nothing here imports JAX.
+Nothing here computes with JAX: the counts are NumPy.
 """
 
 from __future__ import annotations
@@ -13,6 +13,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from . import storage
+from ._optimize import EndReason
 
 #: Best grasps kept for the summary (and ``--plot``).
 DEFAULT_TOP = 10
@@ -244,8 +247,6 @@ class PipelineSummary:
 
 def best_in_file(path, top: int = DEFAULT_TOP, chunk: int = 65536) -> tuple[BestGrasps | None, dict]:
     """The ``top`` best force-closure grasps of a result file (streamed) and its metadata."""
-    from . import storage
-
     src = storage.ResultFile(path)
     missing = [c for c in ("quality", "force_closure") if c not in src.fields]
     if missing:
@@ -268,8 +269,6 @@ def best_starts(path, k: int, chunk: int = 65536) -> tuple[BestGrasps, dict]:
     order); all grasps when the file holds ``k`` or fewer. A file without ``quality`` and
     ``force_closure`` columns (plain ``points`` and ``normals``) gives its first ``k`` grasps.
     """
-    from . import storage
-
     src = storage.ResultFile(path)
     k = int(k)
     if k < 1:
@@ -310,8 +309,6 @@ def optimize_summary(result, metadata: dict, *, best: BestGrasps | None = None, 
         output: the file written, if any.
         sampled: ``(S * steps,)`` Q of as many random grasps (the figure's comparison), if drawn.
     """
-    from ._optimize import EndReason
-
     fc = np.asarray(result.force_closure, bool)
     q = np.asarray(result.quality, float)
     reasons = np.asarray(result.reason)
@@ -346,8 +343,6 @@ def optimize_summary(result, metadata: dict, *, best: BestGrasps | None = None, 
 def format_optimize(summary: dict, best: int = 5) -> str:
     """:func:`optimize_summary` as aligned lines, in the style of :meth:`PipelineSummary.format`;
     ``best``: how many of the best grasps to list."""
-    from ._optimize import EndReason
-
     m = summary["metadata"]
     starts, steps = summary["starts"], summary["steps"]
     what = m.get("object_name") or m.get("object", "?")

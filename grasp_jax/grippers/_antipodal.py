@@ -21,6 +21,7 @@ from typing import Iterator, NamedTuple
 
 import numpy as np
 
+from ..objects import Mesh
 from ._contacts import (
     as_trimesh,
     close_jaws,
@@ -87,8 +88,6 @@ def _frame(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _surface(mesh):
     """An object whose ``sample_surface`` draws points on the triangles of ``mesh``'s trimesh (an
     analytic shape's own sampler draws on the exact surface, off the triangles the rays meet)."""
-    from ..objects import Mesh
-
     if isinstance(mesh, Mesh):
         return mesh
 

@@ -6,6 +6,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._api import critical_friction, evaluate
+from .._friction import FrictionStatus
 from ._gripper import JawStatus
 
 
@@ -33,8 +35,6 @@ class JawScores(NamedTuple):
 def mask_failed(status, force_closure, quality, critical_mu=None, critical_status=None):
     """The scores with every grasp whose jaw ``status`` is not ``OK`` set to not force-closure,
     Q 0, critical friction ``inf`` (status ``ABOVE_CAP``). Returns the four arrays (or ``None``)."""
-    from .._friction import FrictionStatus
-
     failed = np.asarray(status) != JawStatus.OK
     fc = np.asarray(force_closure, bool) & ~failed
     q = np.where(failed, 0.0, np.asarray(quality, float))
@@ -66,8 +66,6 @@ def score_grasps(points, normals, status, *, mu: float, torsion: float, contact:
     Returns:
         :class:`JawScores`.
     """
-    import grasp_jax as gj
-
     points = np.asarray(points, np.float64)
     normals = np.asarray(normals, np.float64)
     status = np.asarray(status)
@@ -75,11 +73,11 @@ def score_grasps(points, normals, status, *, mu: float, torsion: float, contact:
         raise ValueError(f"points and normals must have shape (k, 2, 3); got {points.shape}, {normals.shape}")
     if status.shape != points.shape[:1]:
         raise ValueError(f"status must have shape ({len(points)},); got {status.shape}")
-    res = gj.evaluate(points, normals, mu=mu, num_edges=num_edges, contact=contact, torsion=torsion)
+    res = evaluate(points, normals, mu=mu, num_edges=num_edges, contact=contact, torsion=torsion)
     crit_mu = crit_status = None
     if critical:
         kwargs = {} if cap is None else {"cap": cap}
-        crit_mu, crit_status = gj.critical_friction(points, normals, num_edges=num_edges, contact=contact,
-                                                    torsion=torsion, **kwargs)
+        crit_mu, crit_status = critical_friction(points, normals, num_edges=num_edges, contact=contact,
+                                                 torsion=torsion, **kwargs)
     fc, q, crit_mu, crit_status = mask_failed(status, res.force_closure, res.quality, crit_mu, crit_status)
     return JawScores(fc, q, np.asarray(res.converged, bool), crit_mu, crit_status)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..hands._builtin import default_urdf
 from ._episode import Scene, run_episode
 from ._object import sim_object
 from ._pool import run_batched
@@ -27,8 +28,6 @@ def _urdf(hand) -> tuple[str, str]:
     path = getattr(hand, "path", "")
     if path:
         return Path(path).read_text(), str(Path(path).resolve().parent)
-    from ..hands._builtin import default_urdf  # only reached with a built-in hand: grasp_jax.hands is loaded
-
     return default_urdf(), "."
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..grippers._contacts import as_trimesh
 from ..storage import write_atomically
 
 #: Default total mass of an object, kg (DexGraspBench's main branch: 100 g for every object).
@@ -162,8 +163,6 @@ def decompose(mesh, params: Decomposition | None = None, *, cache: bool = True) 
     Raises:
         ValueError: the mesh has no triangles, or the decomposition gives no part with volume.
     """
-    from ..grippers._contacts import as_trimesh
-
     params = Decomposition() if params is None else params
     tm = as_trimesh(mesh)
     vertices, faces = np.asarray(tm.vertices, np.float64), np.asarray(tm.faces, np.int64)
