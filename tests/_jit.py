@@ -1,16 +1,16 @@
-"""``jit`` for the suite's own large programs, compiled with fewer LLVM optimization passes (test helper).
+"""``jit`` for the suite's own large programs, compiled for a short compile (test helper).
 
-Compiling XLA programs is most of the suite's time, and most of a large program's compile time on
-a CPU is LLVM optimizing the generated code: ``xla_backend_optimization_level`` 0 instead of
-XLA's default roughly halves it (the fused evaluate + min_weight + paper program of
-``test_closure.py``, 4 fingers: 10.5 s against 19 s of CPU) while the programs run in about the
-same time on the suite's small batches. The level changes how the machine code is optimized, not
-what it computes: the library's JAX code, its HLO and XLA's HLO passes are the same; only the last
-bits of a value may differ, as between any two XLA versions (the library's own chunk programs, which
-this helper does not touch, use level 1: ``grasp_jax._batch.COMPILER_OPTIONS``).
+Compiling XLA programs is most of the suite's time. These programs are compiled with LLVM's
+optimization level 0 and XLA's classic CPU emitters (``xla_cpu_use_fusion_emitters`` off), which
+compile each fused kernel faster: ``tests/test_closure.py`` and ``tests/test_contact.py`` took 244
+CPU-s instead of 302 with the fusion emitters (2026-12-08), and level 0 roughly halves a large
+program's compile against XLA's default. The options change how XLA generates machine code, not
+what the library's JAX code computes; only the last bits of a value may differ, as between two XLA
+versions. The library's own chunk programs, which this helper does not touch, are compiled as a
+user's are (``grasp_jax._batch.COMPILER_OPTIONS``).
 
 ``GRASP_JAX_TEST_OPT=default`` compiles these programs with XLA's default options instead (to
-check that a result does not depend on the level); ``GRASP_JAX_TEST_OPT=<n>`` with level ``n``.
+check that a result does not depend on them); ``GRASP_JAX_TEST_OPT=<n>`` with level ``n``.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def _options() -> dict:
     level = os.environ.get("GRASP_JAX_TEST_OPT", "0").strip().lower()
     if level in ("", "default", "none"):
         return {}
-    return {"xla_backend_optimization_level": int(level)}
+    return {"xla_backend_optimization_level": int(level), "xla_cpu_use_fusion_emitters": False}
 
 
 #: Compiler options of every program made by :func:`jit`.

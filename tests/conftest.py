@@ -6,49 +6,60 @@ so that its comparisons with the float64 references (HiGHS, qhull, finite differ
 float64 under ``jit`` and ``grad`` too; ``test_dtypes.py`` checks float32 programs in
 subprocesses without it.
 
-Compiling XLA programs is most of the suite's time. A developer who runs the suite again and
-again can keep what it compiles in a cache of its own: ``GRASP_JAX_CACHE=.test-cache/xla`` (any
-folder; ``.test-cache/`` is git-ignored), set here before anything is compiled; the next run
-loads what this one compiled. It is off by default (``GRASP_JAX_CACHE`` unset: the suite never
-reads or writes a cache, and the user's ``~/.cache`` neither): from a fresh clone it does not pay
-for itself (``tests/test_friction.py`` and ``tests/test_lp.py``, 2 workers: 146 s with an empty
-cache, 127 s without), and a test worker aborted inside XLA's serialization of an executable for
-the persistent cache three times (twice on a program with a Jacobi loop, once on the optimizer's
-critical-friction program; not reproduced in 8 runs of that test alone), which under ``--dist
-loadfile`` also left the run hanging (pytest-xdist issue 784: ``--max-worker-restart 0`` in
-``pyproject.toml`` now ends such a run at once). Where it is on, two caches share the folder:
+Compiling XLA programs is most of the suite's time. ``GRASP_JAX_CACHE`` chooses what is kept:
 
-* the test processes (the pytest-xdist workers of ``-n auto`` in ``pyproject.toml``; ``-n 0`` runs
-  the suite in one process) switch on JAX's own persistent cache there, which keeps the programs
-  the tests jit themselves (most of the suite's compilations) as well as the library's. The library
-  then only reads its own cache (``grasp_jax._cache``, which writes nothing beside JAX's);
-* the processes the tests start (the command line, the device layouts, the float32 checks)
-  inherit ``GRASP_JAX_CACHE`` but not JAX's cache (``JAX_COMPILATION_CACHE_DIR`` is removed from
-  the environment): they run as a user's processes do, with the library's own cache, and share the
-  chunk programs that one of them compiled, which the test processes load too.
+* unset (the default): the library's own cache (``grasp_jax._cache``, the chunk programs) in a
+  folder of this run only, ``xla-cache`` in pytest's base temporary folder, shared by the
+  pytest-xdist workers and every process a test starts (the command line, the device layouts,
+  the float32 checks) and removed when the run ends: a chunk program is compiled once per run, not
+  once per worker and process. JAX's own persistent cache stays off: the programs the tests jit
+  themselves are compiled where they are used (a worker aborted three times inside XLA's
+  serialization of such small programs for JAX's cache, which under ``--dist loadfile`` also
+  hung the run: pytest-xdist issue 784, hence ``--max-worker-restart 0`` in ``pyproject.toml``);
+* a folder (``GRASP_JAX_CACHE=.test-cache/xla``; ``.test-cache/`` is git-ignored), for a
+  developer who runs the suite again and again: kept between runs, and the test processes switch
+  on JAX's own persistent cache there too (the library then only reads its own cache, which
+  writes nothing beside JAX's); the processes the tests start inherit ``GRASP_JAX_CACHE`` but not
+  JAX's cache (``JAX_COMPILATION_CACHE_DIR`` is removed from the environment): they run as a
+  user's processes do;
+* ``off``: no cache at all in the test processes (the processes a test starts share one folder
+  per worker).
+
+The user's ``~/.cache`` is never read or written.
 """
 
 from __future__ import annotations
 
 import gc
 import os
+import shutil
 import signal
 from pathlib import Path
 from types import SimpleNamespace
 
-#: The suite's compilation cache (see the docstring), before JAX is imported.
-os.environ.setdefault("GRASP_JAX_CACHE", "off")  # opt in: GRASP_JAX_CACHE=.test-cache/xla
-#: The folder in effect for the whole session, or ``None`` when switched off (the values of
-#: ``grasp_jax._cache.OFF``, which cannot be imported before JAX).
-SUITE_CACHE = os.environ["GRASP_JAX_CACHE"]
-if SUITE_CACHE.strip().lower() in ("", "0", "off", "no", "none", "false"):
+#: The suite's compilation cache (see the docstring), before JAX is imported. ``SESSION`` in the
+#: environment marks the default: ``"new"`` until this run's folder is made (``_session_cache``),
+#: then that folder, for the workers and the processes the tests start.
+SESSION = "GRASP_JAX_SUITE_CACHE"
+if "GRASP_JAX_CACHE" not in os.environ:
+    os.environ["GRASP_JAX_CACHE"] = "off"  # until the session's folder is made
+    os.environ[SESSION] = "new"
+SESSION_CACHE = os.environ.get(SESSION)
+#: The developer's folder (the library's cache and JAX's), or ``None`` (the values of
+#: ``grasp_jax._cache.OFF``, which cannot be imported before JAX, and the session's default).
+SUITE_CACHE = None if SESSION_CACHE else os.environ["GRASP_JAX_CACHE"]
+if SUITE_CACHE is not None and SUITE_CACHE.strip().lower() in ("", "0", "off", "no", "none", "false"):
     SUITE_CACHE = None
 os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)  # see the docstring
 # The programs the tests jit themselves compiled with LLVM's optimization level 1, as the library's
 # chunk programs are (``_batch.COMPILER_OPTIONS``): tests/test_objectives.py took 111 s of CPU
-# instead of 123 with an empty cache (level 0: 120, its programs run slower).
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=1").strip()
+# instead of 123 with an empty cache (level 0: 120, its programs run slower). XLA reads XLA_FLAGS
+# once, when JAX makes its backend (below); the caller's value is then put back, so that the
+# processes the tests start run as a user's do and the library's cache keys (which name XLA_FLAGS)
+# are theirs: a chunk program compiled here is loaded there, and the other way round.
+_CALLER_XLA_FLAGS = os.environ.get("XLA_FLAGS")
+if "xla_backend_optimization_level" not in (_CALLER_XLA_FLAGS or ""):
+    os.environ["XLA_FLAGS"] = ((_CALLER_XLA_FLAGS or "") + " --xla_backend_optimization_level=1").strip()
 
 import hypothesis
 import jax
@@ -67,6 +78,11 @@ IMPORT_CHANGED_CONFIG = {
 assert not IMPORT_CHANGED_CONFIG, f"importing grasp_jax changed JAX's configuration: {IMPORT_CHANGED_CONFIG}"
 
 jax.config.update("jax_enable_x64", True)  # the suite's float64 references; see the docstring
+jax.devices()  # the backend, with the XLA_FLAGS above
+if _CALLER_XLA_FLAGS is None:
+    os.environ.pop("XLA_FLAGS", None)
+else:
+    os.environ["XLA_FLAGS"] = _CALLER_XLA_FLAGS
 if SUITE_CACHE is not None:  # this process only; see the docstring
     jax.config.update("jax_compilation_cache_dir", SUITE_CACHE)
     # Small programs too: the op-by-op ones of un-jitted grads and the surfaces' walks add up to
@@ -75,7 +91,7 @@ if SUITE_CACHE is not None:  # this process only; see the docstring
 
 from grasp_jax import _cache
 
-assert (_cache.directory() is None) == (SUITE_CACHE is None)
+assert (_cache.directory() is None) == (SUITE_CACHE is None and SESSION_CACHE in (None, "new"))
 
 #: ``<repo root>/../shared/data``: the real meshes and polygons shared by the project.
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -183,10 +199,36 @@ def mesh_dir(shared_data) -> Path:
     return path
 
 
+def _session_folder(basetemp: Path) -> Path:
+    """This run's cache folder: beside the workers' base folders (``popen-gw0``, ...), or in the
+    base folder of a run without workers."""
+    return (basetemp.parent if os.environ.get("PYTEST_XDIST_WORKER") else basetemp) / "xla-cache"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory):
+    """Points ``GRASP_JAX_CACHE`` at this run's folder (the default; see the docstring)."""
+    if SESSION_CACHE is not None:
+        folder = SESSION_CACHE if SESSION_CACHE != "new" else str(_session_folder(tmp_path_factory.getbasetemp()))
+        os.environ["GRASP_JAX_CACHE"] = os.environ[SESSION] = folder
+    yield
+
+
+def pytest_unconfigure(config):
+    """The run's cache folder removed by the process that made it (the controller of the workers)."""
+    if SESSION_CACHE == "new" and not os.environ.get("PYTEST_XDIST_WORKER"):
+        factory = getattr(config, "_tmp_path_factory", None)
+        if factory is not None:
+            shutil.rmtree(_session_folder(factory.getbasetemp()), ignore_errors=True)
+
+
 @pytest.fixture(scope="session")
-def xla_cache(tmp_path_factory) -> str:
-    """``GRASP_JAX_CACHE`` for the processes a test starts: the suite's cache, or, where it is
-    switched off, one for this session's processes (so that only the first of them compiles)."""
+def xla_cache(tmp_path_factory, _session_cache) -> str:
+    """``GRASP_JAX_CACHE`` for the processes a test starts: the run's folder or the developer's,
+    or, where the cache is switched off, one for this worker's processes (so that only the first
+    of them compiles)."""
+    if SESSION_CACHE is not None:
+        return os.environ[SESSION]
     return SUITE_CACHE or str(tmp_path_factory.getbasetemp() / "xla-cache")
 
 

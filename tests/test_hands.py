@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _jit import jit
 import yourdfpy
 
 from grasp_jax import hands
@@ -59,7 +60,7 @@ def _yourdfpy_frames(urdf, hand, pose, joints):
 def _check_against_yourdfpy(hand, urdf, count):
     pose, joints = _random_configs(hand, count, seed=1)
     with float64_scope():
-        ours = np.asarray(jax.jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(hand, pose, joints))
+        ours = np.asarray(jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(hand, pose, joints))
     theirs = _yourdfpy_frames(urdf, hand, pose, joints)
     # positions to 1e-9 m and rotations to 1e-9, every link
     assert np.abs(ours[..., :3, 3] - theirs[..., :3, 3]).max() < 1e-9
@@ -92,8 +93,8 @@ def test_forward_gradient_matches_finite_differences(default_hand):
 
     with float64_scope():
         pose, joints = jnp.asarray(pose[0]), jnp.asarray(joints[0])
-        gp, gj = jax.jit(jax.grad(f, argnums=(0, 1)))(pose, joints)  # op by op: 148 programs
-        f = jax.jit(f)
+        gp, gj = jit(jax.grad(f, argnums=(0, 1)))(pose, joints)  # op by op: 148 programs
+        f = jit(f)
         h = 1e-6
         for args, grad in (((0, pose), gp), ((1, joints), gj)):
             which, x = args
@@ -106,9 +107,9 @@ def test_forward_gradient_matches_finite_differences(default_hand):
 
 def test_forward_vmap_equals_loop_and_float32(default_hand):
     pose, joints = _random_configs(default_hand, 5, seed=3)
-    forward = jax.jit(hands.forward)  # op by op, the loop and the vmap compiled 112 programs
+    forward = jit(hands.forward)  # op by op, the loop and the vmap compiled 112 programs
     with float64_scope():
-        batched = np.asarray(jax.jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(default_hand, pose, joints))
+        batched = np.asarray(jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(default_hand, pose, joints))
         loop = np.stack([np.asarray(forward(default_hand, p, q)) for p, q in zip(pose, joints)])
     np.testing.assert_allclose(batched, loop, atol=1e-12)
     single = forward(default_hand, pose[0].astype(np.float32), joints[0].astype(np.float32))
@@ -228,7 +229,7 @@ def _mujoco_frames(model, hand, pose, joints):
 def _check_against_mujoco(hand, model, count):
     pose, joints = _random_configs(hand, count, seed=4)
     with float64_scope():
-        ours = np.asarray(jax.jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(hand, pose, joints))
+        ours = np.asarray(jit(jax.vmap(hands.forward, in_axes=(None, 0, 0)))(hand, pose, joints))
     theirs, links, anchor = _mujoco_frames(model, hand, pose, joints)
     ours = ours[:, links] @ anchor  # each body's frame, from its link's (at the anchor)
     assert np.abs(ours[..., :3, 3] - theirs[..., :3, 3]).max() < 1e-9
@@ -352,7 +353,7 @@ def glass():
 def test_candidates_face_the_palm(default_hand):
     with float64_scope():
         # jitted: op by op it compiled 57 programs (the tests above compile this one)
-        frames = np.asarray(jax.jit(hands.forward)(default_hand, np.array([0, 0, 0, 1.0, 0, 0, 0]),
+        frames = np.asarray(jit(hands.forward)(default_hand, np.array([0, 0, 0, 1.0, 0, 0, 0]),
                                                    default_hand.open_joints))
     f, k = default_hand.candidate_point.shape[:2]
     assert f == 3 and k >= 4
@@ -375,7 +376,7 @@ def test_sdf_against_trimesh(glass):
     rng = np.random.default_rng(0)
     x = glass.center + rng.uniform(-1.2, 1.2, (400, 3)) * glass.radius
     with float64_scope():
-        ours = np.asarray(jax.jit(jax.vmap(lambda p: hands._sdf.distance(geom, p)))(x))  # op by op: 38 programs
+        ours = np.asarray(jit(jax.vmap(lambda p: hands._sdf.distance(geom, p)))(x))  # op by op: 38 programs
     exact = -trimesh.proximity.signed_distance(glass.mesh, x)
     near = np.abs(exact) < 0.1 * glass.radius
     assert np.abs(ours - exact)[near].max() < 0.5 * float(geom.cell)
@@ -387,7 +388,7 @@ def test_sdf_against_trimesh(glass):
     closest, gap, _ = trimesh.proximity.closest_point(glass.mesh, x)
     outside = ~glass.mesh.contains(x)
     with float64_scope():
-        normal = np.asarray(jax.jit(jax.vmap(lambda p: hands._sdf.distance_and_normal(geom, p)[1]))(x))
+        normal = np.asarray(jit(jax.vmap(lambda p: hands._sdf.distance_and_normal(geom, p)[1]))(x))
     cosine = np.sum(normal * (x - closest) / gap[:, None], axis=1)[outside]
     angle = np.degrees(np.arccos(np.clip(cosine, -1, 1)))  # measured: median 1.0, 90th 2.8, largest 16
     assert outside.sum() >= 200 and np.median(angle) < 2 and np.percentile(angle, 90) < 5 and angle.max() < 25
@@ -403,7 +404,7 @@ def test_penetration_against_trimesh(default_hand, glass):
     geom = hands.geometry(glass)
     far = np.array([*(glass.center + [0, 0, 3 * glass.radius]), 1.0, 0, 0, 0])
     inside = np.array([*(glass.center - [0, 0, 0.01]), 1.0, 0, 0, 0])
-    forward, penetration = jax.jit(hands.forward), jax.jit(_energy.penetration)  # op by op: 57 programs
+    forward, penetration = jit(hands.forward), jit(_energy.penetration)  # op by op: 57 programs
     with float64_scope():
         for pose, expect in ((far, False), (inside, True)):
             frames = np.asarray(forward(default_hand, pose, default_hand.open_joints))
@@ -446,7 +447,7 @@ def test_penetration_reads_the_nearest_patches_exactly(default_hand, glass, monk
     top = glass.center + np.array([0, 0, 0.95]) * glass.radius
     poses = np.concatenate([top + rng.normal(0, 0.005, (24, 3)), np.tile([1.0, 0, 0, 0], (24, 1))], axis=1)
     with float64_scope():
-        culled, full, fits = (np.asarray(a) for a in jax.jit(jax.vmap(both))(poses))
+        culled, full, fits = (np.asarray(a) for a in jit(jax.vmap(both))(poses))
     assert fits.sum() >= 4 and (full[fits] > 0).sum() >= 2
     np.testing.assert_allclose(culled[fits], full[fits], rtol=1e-12, atol=1e-15)
     assert (culled <= full + 1e-15).all()
@@ -475,7 +476,7 @@ def test_final_check_reads_the_deepest_sample(default_hand, glass):
     top = glass.center + np.array([0, 0, 0.95]) * glass.radius
     poses = np.concatenate([top + rng.normal(0, 0.005, (16, 3)), np.tile([1.0, 0, 0, 0], (16, 1))], axis=1)
     with float64_scope():
-        culled, full, fits = (np.asarray(a) for a in jax.jit(jax.vmap(both))(poses))
+        culled, full, fits = (np.asarray(a) for a in jit(jax.vmap(both))(poses))
     assert fits.sum() >= 4 and (full[fits] < 0).sum() >= 2
     np.testing.assert_array_equal(culled[fits], full[fits])
     assert (culled >= full).all()
@@ -526,7 +527,7 @@ def test_closing_moves_the_fingers_to_the_gap(synthesized, default_hand, glass):
         return closed, dist(q), dist(closed)
 
     with float64_scope():
-        closed, before, after = (np.asarray(a) for a in jax.jit(jax.vmap(one))(pose, synthesized.joints))
+        closed, before, after = (np.asarray(a) for a in jit(jax.vmap(one))(pose, synthesized.joints))
     far = before > gap + 1e-4
     assert far.sum() >= 4 and (after[far] < before[far]).all()
     assert (np.abs(after - gap) < 2e-4).sum() > (np.abs(before - gap) < 2e-4).sum()

@@ -10,6 +10,7 @@ import jax
 import numpy as np
 import pytest
 from _grasps import MU
+from _jit import jit
 
 import grasp_jax as gj
 from grasp_jax import _noise, objects, surfaces
@@ -81,8 +82,8 @@ def test_p_fc_equals_a_loop_of_evaluate_over_the_same_draws(box, box_grasps):
     from grasp_jax import _closure
 
     with jax.enable_x64(True):  # jitted: op by op, these two compiled 220 programs
-        duals = jax.jit(jax.vmap(lambda a, b: _closure.quality_dual_one(a, b, MU, ContactModel(num_edges=8))))(p, n)
-        settled = np.asarray(jax.jit(jax.vmap(jax.vmap(lambda a, b, y: _closure.out_of_equilibrium(a, b, MU * 0.8, ContactModel(num_edges=8), y),
+        duals = jit(jax.vmap(lambda a, b: _closure.quality_dual_one(a, b, MU, ContactModel(num_edges=8))))(p, n)
+        settled = np.asarray(jit(jax.vmap(jax.vmap(lambda a, b, y: _closure.out_of_equilibrium(a, b, MU * 0.8, ContactModel(num_edges=8), y),
                                                        in_axes=(0, 0, None))))(pp, nn, duals))
     assert 0.05 < settled.mean() < 0.95
     for g in range(len(p)):  # brute force: one evaluate per grasp, over its 16 perturbations
@@ -276,7 +277,7 @@ def test_robust_objective_scores_the_perturbed_contacts_of_robust():
         def mean(v):
             return _noise.robust_value(surface, contacts, v, MU, draws, objective, flags=noise._flags())
 
-        (_, values), grad = jax.jit(jax.value_and_grad(mean, has_aux=True))(jnp.zeros((N, 3)))
+        (_, values), grad = jit(jax.value_and_grad(mean, has_aux=True))(jnp.zeros((N, 3)))
         expected = [objective(pp[0, k], nn[0, k], mm[0, k]) for k in range(K)]
         np.testing.assert_allclose(np.asarray(values), np.asarray(expected), rtol=0, atol=1e-12)
         h = 1e-6
