@@ -29,18 +29,23 @@ def _options() -> dict:
 
 #: Compiler options of every program made by :func:`jit`.
 COMPILER_OPTIONS = _options()
+#: ... with XLA's fusion emitters instead (``jit(fn, options=FUSION_EMITTERS)``), for a file that
+#: compares two of its programs bit for bit (``tests/test_lp.py``: a warm start against a cold
+#: one): two programs that the classic emitters fuse differently may round an ulp apart.
+FUSION_EMITTERS = {k: v for k, v in COMPILER_OPTIONS.items() if k != "xla_cpu_use_fusion_emitters"}
 
 
 class jit:  # noqa: N801 - used like jax.jit
-    """``jax.jit(fn)`` compiled with :data:`COMPILER_OPTIONS`, once per input signature.
+    """``jax.jit(fn)`` compiled with :data:`COMPILER_OPTIONS` (or ``options``), once per input signature.
 
     Arguments are arrays (or pytrees of arrays); the compiled programs are kept per tree structure,
     shape and dtype of the leaves and per x64 mode, and JAX's persistent cache (``conftest.py``)
     keeps them between runs as it keeps ``jax.jit``'s.
     """
 
-    def __init__(self, fn):
+    def __init__(self, fn, options: dict | None = None):
         self._jitted = jax.jit(fn)
+        self._options = COMPILER_OPTIONS if options is None else options
         self._compiled: dict = {}
 
     def _key(self, args):
@@ -51,6 +56,6 @@ class jit:  # noqa: N801 - used like jax.jit
         key = self._key(args)
         compiled = self._compiled.get(key)
         if compiled is None:
-            compiled = self._jitted.lower(*args).compile(compiler_options=COMPILER_OPTIONS)
+            compiled = self._jitted.lower(*args).compile(compiler_options=self._options)
             self._compiled[key] = compiled
         return compiled(*args)

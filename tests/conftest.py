@@ -120,10 +120,11 @@ hypothesis.settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "grasp_jax
 #: Seconds per file: ``GRASP_JAX_PROFILE_COMPILES`` (below) and ``tests/_profile.py``. Files not
 #: named here follow, in their usual order; the tests of a file keep theirs.
 LONGEST_FIRST = (
-    "test_objectives.py", "test_dataset.py", "test_closure.py", "test_hands.py", "test_cli.py", "test_robust.py",
-    "test_pipeline.py", "test_devices.py", "test_surfaces.py", "test_optimize.py", "test_friction.py",
-    "test_dtypes.py", "test_autodiff.py", "test_batching.py", "test_docs.py", "test_sim.py", "test_compose.py",
-    "test_lp.py", "test_cli_optimize.py", "test_html.py", "test_invariance.py",
+    "test_friction.py", "test_dtypes.py", "test_hands.py", "test_dataset.py", "test_docs.py", "test_contact.py",
+    "test_robust.py", "test_objectives.py", "test_cli.py", "test_closure.py", "test_surfaces.py", "test_optimize.py",
+    "test_batching.py", "test_robust_jaws.py", "test_pipeline.py", "test_devices.py", "test_lp.py", "test_html.py",
+    "test_grippers.py", "test_compose.py", "test_cli_robust.py", "test_autodiff.py", "test_invariance.py",
+    "test_crossover.py", "test_geometry.py", "test_cli_optimize.py",
 )
 
 

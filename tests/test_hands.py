@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _jit import jit
 import yourdfpy
+from _jit import jit
 
 from grasp_jax import hands
 from grasp_jax._precision import float64_scope

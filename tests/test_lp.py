@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+
+import _jit
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,8 +13,8 @@ from scipy.optimize import linprog
 
 from grasp_jax.lp import LP, Status, optimal_value, solve, warm_point
 
-from _jit import jit
-
+#: The warm-start and best-effort checks compare two programs bit for bit (``_jit.FUSION_EMITTERS``).
+jit = functools.partial(_jit.jit, options=_jit.FUSION_EMITTERS)
 ROWS, COLS = 5, 12  # one shape for every batch below: one compilation per transformation
 BATCH = 40
 
